@@ -1,0 +1,1 @@
+"""Rig configurations (TOML), installed as the package data ``hilbench.configs``."""

@@ -1,0 +1,37 @@
+"""Errors the user can fix.
+
+Every problem caused by input (a config, a plan, a data file, a command-line value) is raised as
+:class:`UserError`. The CLI prints it as one line plus an optional hint and exits with status 2;
+``--debug`` shows the traceback. Everything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+
+class UserError(Exception):
+    """A problem with the user's input, reported as one line.
+
+    ``where`` names the file (and key, line or value) at fault, ``message`` says what was expected.
+    """
+
+    def __init__(self, message: str, *, where: str | None = None, hint: str | None = None):
+        self.message = message
+        self.where = where
+        self.hint = hint
+        super().__init__(self.line())
+
+    def line(self) -> str:
+        text = f"{self.where}: {self.message}" if self.where else self.message
+        return " ".join(text.split())  # one line, whatever the parts contained
+
+
+class ConfigError(UserError):
+    """A rig config or plan file is invalid."""
+
+
+class PlanLimitError(UserError):
+    """A plan would drive the actuator outside its range or slew limit."""
+
+
+class DataError(UserError):
+    """A data file (CSV, MAT, HDF5) cannot be read as asked."""

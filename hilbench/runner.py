@@ -1,0 +1,153 @@
+"""The experiment runner: plays a checked plan on a rig into a recording, safely.
+
+* The whole plan is checked against the actuator's limits before anything moves.
+* Runs stream to disk chunk by chunk (memory stays bounded however long a run is); the writer
+  flushes at least once a second.
+* Ctrl-C and SIGTERM are held off: the handler only sets a flag, the runner finishes the chunk,
+  makes the actuator safe, flushes and writes ``status = "aborted"`` (QCoDeS-style deferral).
+* Any exception makes the actuator safe and closes the run with ``status = "failed"`` and the
+  traceback in ``reason`` before it propagates.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+import traceback
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hilbench.plan import PlannedRun, check_plan
+from hilbench.recording import RecordingWriter
+from hilbench.rig import Rig
+
+#: progress(run_index, run_label, samples_done_in_run, samples_in_run)
+Progress = Callable[[int, str, int, int], None]
+
+
+@dataclass
+class RunResult:
+    label: str
+    group: str
+    status: str
+    samples: int
+    reason: str = ""
+
+
+@dataclass
+class SweepResult:
+    file: str
+    runs: list[RunResult] = field(default_factory=list)
+
+    @property
+    def status(self) -> str:
+        statuses = {r.status for r in self.runs}
+        for s in ("failed", "aborted"):
+            if s in statuses:
+                return s
+        return "complete"
+
+
+class _StopRequest:
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+
+    def __bool__(self) -> bool:
+        return self.signal_name is not None
+
+
+@contextmanager
+def deferred_interrupts() -> Iterator[_StopRequest]:
+    """Turn SIGINT/SIGTERM into a flag for the duration; restores the old handlers after."""
+    request = _StopRequest()
+    if threading.current_thread() is not threading.main_thread():
+        yield request
+        return
+
+    def handler(signum: int, _frame: Any) -> None:
+        request.signal_name = signal.Signals(signum).name
+
+    old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield request
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def run_plan(
+    rig: Rig,
+    runs: list[PlannedRun],
+    output: str | Path,
+    *,
+    experiment: str = "sweep",
+    realtime: bool | None = None,
+    progress: Progress | None = None,
+    chunk_samples: int | None = None,
+    on_flush: Callable[[str, int], None] | None = None,
+) -> SweepResult:
+    """Check the plan, then play each run on the rig into ``output`` (appended when it exists)."""
+    check_plan(runs, rig.actuator, rig.fs)
+    realtime = rig.config.realtime if realtime is None else realtime
+    if chunk_samples is None:
+        # Real time: 50 ms chunks keep the pacing smooth and the flushes frequent.
+        chunk_samples = max(1, int(rig.fs * 0.05)) if realtime else 65536
+    writer = RecordingWriter(output)
+    result = SweepResult(str(output))
+    channels = rig.channels()
+    with deferred_interrupts() as stop:
+        for index, planned in enumerate(runs, start=1):
+            if stop:
+                break
+            exc = planned.excitation
+            run = writer.begin_run(
+                planned.label, channels, experiment=experiment, excitation=exc.describe(),
+                sample_rate_hz=rig.fs, rig_toml=rig.config.text, devices=rig.devices(),
+            )
+            n_total = exc.n_samples(rig.fs)
+            done = 0
+            try:
+                first = next(exc.chunks(rig.fs, 1))
+                rig.start_run(float(first[0]))
+                t0 = time.monotonic()
+                for chunk in exc.chunks(rig.fs, chunk_samples):
+                    if stop:
+                        break
+                    applied = rig.apply(chunk)
+                    measured = rig.measure(applied)
+                    t = (done + np.arange(chunk.shape[0])) / rig.fs
+                    flushed_before = run.n_flushed
+                    run.append({"time": t, "input": applied, **measured})
+                    done += chunk.shape[0]
+                    if on_flush is not None and run.n_flushed != flushed_before:
+                        on_flush(run.group_name, run.n_flushed)
+                    if progress is not None:
+                        progress(index, planned.label, done, n_total)
+                    if realtime:
+                        lag = t0 + done / rig.fs - time.monotonic()
+                        if lag > 0:
+                            time.sleep(lag)
+                if stop:
+                    rig.stop(False)
+                    reason = f"interrupted by {stop.signal_name} after {done} of {n_total} samples; actuator ramped to rest"
+                    run.finish("aborted", reason)
+                    result.runs.append(RunResult(planned.label, run.group_name, "aborted", done, reason))
+                    break
+                run.finish("complete")
+                result.runs.append(RunResult(planned.label, run.group_name, "complete", done))
+            except BaseException as error:
+                try:
+                    rig.stop(False)
+                finally:
+                    reason = "".join(traceback.format_exception(error))
+                    run.finish("failed", reason)
+                    result.runs.append(RunResult(planned.label, run.group_name, "failed", done, reason))
+                raise
+        rig.stop(True)
+    return result

@@ -1,0 +1,352 @@
+"""numba kernels of the simulated plant: one sample loop, explicit state, caller-provided outputs.
+
+The same kernel serves block mode (whole arrays, offline simulation and sweeps) and step mode (the
+runner's per-sample loop calls it with arrays of length 1): state lives in arrays the caller owns,
+so a block of n samples and n blocks of one sample give identical results.
+
+Signal chain per sample (each stage switchable, see :mod:`hilbench.sim.plant` for parameters):
+
+    command -> amplifier (gain, bandwidth, slew, output limit) -> delay -> normalise (input_scale)
+      -> input shaping (fractional polynomial, FPMPI)            [saturation at the input]
+      -> hysteresis (M-play family: play / one-sided / M-play, or ISSF-Duhem) + asymmetry polynomial
+      -> saturation (tanh) -> rate-dependence (m-th power velocity damping, 003)
+      -> output_scale (um) x temperature gain x load gain -> creep (Kelvin-Voigt chain)
+      -> - load compliance -> dynamics (IIR, direct form II transposed) -> + thermal strain
+      -> sensor (noise, quantisation, range)
+
+Branch-free min/max in the operator loop; the time loop is outermost.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# -- indices into the scalar parameter vector S --------------------------------------------------
+S_AMP_ON = 0
+S_AMP_GAIN = 1
+S_AMP_ALPHA = 2  # first-order low-pass coefficient per sample (1 = no filter)
+S_AMP_SLEW = 3  # max change per sample (inf = none)
+S_AMP_LO = 4
+S_AMP_HI = 5
+S_INPUT_SCALE = 6
+S_MODEL = 7  # 0 linear, 1 M-play family (PI), 2 ISSF-Duhem
+S_P0 = 8  # linear term of the PI family
+S_DUHEM_ALPHA = 9
+S_DUHEM_BETA = 10
+S_DUHEM_SHAPE = 11  # 0 none (z = w), 1 Gompertz (G), 2 modified tanh (M), 3 dead-zone (D)
+S_DUHEM_K1 = 12
+S_DUHEM_K2 = 13
+S_MU_A = 14  # mu1 or mu3
+S_MU_B = 15  # mu2 or mu4
+S_SAT_LEVEL = 16  # 0 = no saturation
+S_RATE_MODE = 17  # 0 off, 1 fixed damping, 2 frequency polynomials (003)
+S_RATE_K = 18
+S_RATE_C = 19
+S_RATE_M = 20
+S_RATE_Q = 21  # reference rate, normalised input units per s
+S_OUT_SCALE = 22
+S_TEMP_ON = 23
+S_TEMP_REF = 24
+S_TEMP_GAIN = 25  # relative gain change per degC
+S_TEMP_STRAIN = 26  # um per degC
+S_LOAD_ON = 27
+S_LOAD_GAIN = 28  # relative gain change per N
+S_LOAD_COMPLIANCE = 29  # um per N
+S_NOISE_STD = 30
+S_QUANT = 31
+S_RANGE_LO = 32
+S_RANGE_HI = 33
+S_RANGE_NAN = 34  # 1: out-of-range readings are NaN, 0: clipped to the range
+S_FS = 35
+S_DYN_ON = 36
+S_DELAY = 37  # samples
+N_SCALARS = 38
+
+# -- indices into the scalar state vector X ------------------------------------------------------
+X_AMP_Y = 0
+X_V_PREV = 1  # previous normalised input (Duhem, rate)
+X_DUHEM_W = 2
+X_RATE_V_PREV = 3
+X_TURN_V = 4  # rate mode 2: input at the last turning point
+X_TURN_T = 5  # sample index of the last turning point
+X_DIR = 6  # +1 rising, -1 falling, 0 unknown
+X_F_EST = 7  # estimated drive frequency, Hz
+X_A_EST = 8  # estimated drive amplitude, normalised units
+X_DELAY_IDX = 9
+X_N = 10  # samples processed
+X_STARTED = 11
+N_STATES = 12
+
+
+@njit(cache=True, inline="always")
+def _sgnpow(x: float, e: float) -> float:
+    if e == 0.0:
+        return 1.0
+    if x >= 0.0:
+        return x**e
+    return -((-x) ** e)
+
+
+@njit(cache=True, inline="always")
+def _poly(c: np.ndarray, x: float) -> float:
+    acc = 0.0
+    for k in range(c.shape[0] - 1, -1, -1):
+        acc = acc * x + c[k]
+    return acc
+
+
+@njit(cache=True)
+def mplay_block(v: np.ndarray, r: np.ndarray, eta: np.ndarray, state: np.ndarray, out: np.ndarray) -> None:
+    """M-play operator outputs (004 eq. 6) for every sample: out[n, i] = max(v - r_i, min(v + eta_i r_i, w_i)).
+
+    eta = 1 gives the play (backlash) operator, eta = 0 the one-sided play operator (000 eq. 1,
+    003 eq. 2). ``state`` holds each operator's last output and is updated in place.
+    """
+    for n in range(v.shape[0]):
+        x = v[n]
+        for i in range(r.shape[0]):
+            w = min(x + eta[i] * r[i], state[i])
+            w = max(x - r[i], w)
+            state[i] = w
+            out[n, i] = w
+
+
+@njit(cache=True)
+def duhem_w_block(u: np.ndarray, alpha: float, beta: float, state: np.ndarray, out: np.ndarray) -> None:
+    """Inertial-system Duhem state w (001 eq. 17), exact for an input linear between samples.
+
+    dw/du = beta u - alpha w on rising input, alpha w - beta u on falling input; state = [w, u_prev].
+    """
+    w = state[0]
+    u_prev = state[1]
+    ba = beta / alpha
+    for n in range(u.shape[0]):
+        du = u[n] - u_prev
+        if du != 0.0:
+            s = 1.0 if du > 0.0 else -1.0
+            w_eq_prev = ba * u_prev - s * ba / alpha
+            w_eq = ba * u[n] - s * ba / alpha
+            w = w_eq + (w - w_eq_prev) * math.exp(-alpha * abs(du))
+        u_prev = u[n]
+        out[n] = w
+    state[0] = w
+    state[1] = u_prev
+
+
+@njit(cache=True, inline="always")
+def _shape(S: np.ndarray, dz_r: np.ndarray, dz_g: np.ndarray, w: float) -> float:
+    shape = S[S_DUHEM_SHAPE]
+    if shape == 1.0:  # Gompertz, 001 eq. 20
+        return 2.0 * math.exp(-math.exp(-S[S_MU_A] * w - S[S_MU_B])) - 2.0 * math.exp(-math.exp(-S[S_MU_B]))
+    if shape == 2.0:  # modified tanh, 001 eq. 24
+        return 2.0 * math.tanh(-math.exp(-S[S_MU_A] * w - S[S_MU_B])) - 2.0 * math.tanh(-math.exp(-S[S_MU_B]))
+    if shape == 3.0:  # one-sided dead-zone operators, 001 eq. 26-27
+        z = 0.0
+        for i in range(dz_r.shape[0]):
+            ri = dz_r[i]
+            if ri > 0.0:
+                z += dz_g[i] * max(w - ri, 0.0)
+            elif ri < 0.0:
+                z += dz_g[i] * min(w - ri, 0.0)
+            else:
+                z += dz_g[i] * w
+        return z
+    return w
+
+
+@njit(cache=True)
+def plant_block(
+    u: np.ndarray,
+    temperature: np.ndarray,
+    load: np.ndarray,
+    noise: np.ndarray,
+    S: np.ndarray,
+    in_exp: np.ndarray,
+    in_w: np.ndarray,
+    op_r: np.ndarray,
+    op_w: np.ndarray,
+    op_eta: np.ndarray,
+    asym: np.ndarray,
+    dz_r: np.ndarray,
+    dz_g: np.ndarray,
+    rate_kp: np.ndarray,
+    rate_cp: np.ndarray,
+    rate_mp: np.ndarray,
+    creep_g: np.ndarray,
+    creep_a: np.ndarray,
+    dyn_b: np.ndarray,
+    dyn_a: np.ndarray,
+    X: np.ndarray,
+    op_state: np.ndarray,
+    creep_state: np.ndarray,
+    dyn_state: np.ndarray,
+    delay_buf: np.ndarray,
+    out_measured: np.ndarray,
+    out_true: np.ndarray,
+    out_drive: np.ndarray,
+) -> None:
+    """Simulate n = len(u) samples of the plant; see the module docstring for the chain."""
+    fs = S[S_FS]
+    n_ops = op_r.shape[0]
+    n_in = in_exp.shape[0]
+    n_creep = creep_g.shape[0]
+    n_dyn = dyn_state.shape[0]
+    delay = int(S[S_DELAY])
+    model = S[S_MODEL]
+    for n in range(u.shape[0]):
+        # -- amplifier ---------------------------------------------------------------------
+        drive = u[n]
+        if S[S_AMP_ON] != 0.0:
+            target = min(max(S[S_AMP_GAIN] * drive, S[S_AMP_LO]), S[S_AMP_HI])
+            y_amp = X[X_AMP_Y]
+            if X[X_STARTED] == 0.0:
+                y_amp = target
+            step = S[S_AMP_ALPHA] * (target - y_amp)
+            step = min(max(step, -S[S_AMP_SLEW]), S[S_AMP_SLEW])
+            y_amp += step
+            X[X_AMP_Y] = y_amp
+            drive = y_amp
+        out_drive[n] = drive
+        # -- pure delay (ring buffer of `delay` samples) --------------------------------------
+        if delay > 0:
+            idx = int(X[X_DELAY_IDX])
+            if X[X_STARTED] == 0.0:
+                for k in range(delay):
+                    delay_buf[k] = drive
+            delayed = delay_buf[idx]
+            delay_buf[idx] = drive
+            X[X_DELAY_IDX] = (idx + 1) % delay
+            drive = delayed
+        v = drive / S[S_INPUT_SCALE]
+        if X[X_STARTED] == 0.0:
+            X[X_V_PREV] = v
+            X[X_RATE_V_PREV] = v
+            X[X_TURN_V] = v
+            X[X_STARTED] = 1.0
+        # -- input shaping: fractional polynomial (000 eq. 4-5) --------------------------------
+        vs = v
+        if n_in > 0:
+            vs = 0.0
+            for k in range(n_in):
+                vs += in_w[k] * _sgnpow(v, in_exp[k])
+        # -- hysteresis ---------------------------------------------------------------------
+        if model == 1.0:
+            h = S[S_P0] * vs
+            for i in range(n_ops):
+                w = min(vs + op_eta[i] * op_r[i], op_state[i])
+                w = max(vs - op_r[i], w)
+                op_state[i] = w
+                h += op_w[i] * w
+        elif model == 2.0:
+            alpha = S[S_DUHEM_ALPHA]
+            ba = S[S_DUHEM_BETA] / alpha
+            du = vs - X[X_V_PREV]
+            wd = X[X_DUHEM_W]
+            if du != 0.0:
+                s = 1.0 if du > 0.0 else -1.0
+                wd = ba * vs - s * ba / alpha + (wd - (ba * X[X_V_PREV] - s * ba / alpha)) * math.exp(-alpha * abs(du))
+                X[X_DUHEM_W] = wd
+            h = S[S_DUHEM_K1] * vs + S[S_DUHEM_K2] * _shape(S, dz_r, dz_g, wd)
+        else:
+            h = S[S_P0] * vs
+        X[X_V_PREV] = vs
+        if asym.shape[0] > 0:
+            h += _poly(asym, v)
+        # -- saturation ---------------------------------------------------------------------
+        if S[S_SAT_LEVEL] > 0.0:
+            h = S[S_SAT_LEVEL] * math.tanh(h / S[S_SAT_LEVEL])
+        # -- rate-dependence: m-th power velocity damping (003 eq. 6-10) -------------------------
+        rate_mode = S[S_RATE_MODE]
+        if rate_mode != 0.0:
+            vdot = (v - X[X_RATE_V_PREV]) * fs
+            X[X_RATE_V_PREV] = v
+            k_gain = S[S_RATE_K]
+            c = S[S_RATE_C]
+            m = S[S_RATE_M]
+            q = S[S_RATE_Q]
+            if rate_mode == 2.0:
+                # The drive frequency and amplitude are estimated from the last half cycle between
+                # turning points, as a bench would see them; k(f), c(f), m(f) follow 003 eq. 13.
+                d = 1.0 if vdot > 0.0 else (-1.0 if vdot < 0.0 else 0.0)
+                if d != 0.0 and d != X[X_DIR]:
+                    if X[X_DIR] != 0.0:
+                        half = (X[X_N] - X[X_TURN_T]) / fs
+                        if half > 0.0:
+                            X[X_F_EST] = 0.5 / half
+                            X[X_A_EST] = 0.5 * abs(v - X[X_TURN_V])
+                    X[X_TURN_V] = v
+                    X[X_TURN_T] = X[X_N]
+                    X[X_DIR] = d
+                f = X[X_F_EST]
+                k_gain = _poly(rate_kp, f)
+                c = _poly(rate_cp, f)
+                m = _poly(rate_mp, f)
+                q = 2.0 * math.pi * f * X[X_A_EST]
+            h = k_gain * h
+            if q > 0.0 and vdot != 0.0:
+                mag = abs(vdot / q) ** m
+                h += c * mag if vdot > 0.0 else -c * mag
+        # -- scale to output units, temperature and load gains ----------------------------------
+        h *= S[S_OUT_SCALE]
+        temp = 0.0
+        if S[S_TEMP_ON] != 0.0:
+            temp = temperature[n] - S[S_TEMP_REF]
+            h *= 1.0 + S[S_TEMP_GAIN] * temp
+        force = 0.0
+        if S[S_LOAD_ON] != 0.0:
+            force = load[n]
+            h *= 1.0 - S[S_LOAD_GAIN] * force
+        # -- creep: Kelvin-Voigt chain driven by the hysteresis output ----------------------------
+        for k in range(n_creep):
+            creep_state[k] += creep_a[k] * (creep_g[k] * h - creep_state[k])
+        for k in range(n_creep):
+            h += creep_state[k]
+        h -= S[S_LOAD_COMPLIANCE] * force
+        # -- linear dynamics, direct form II transposed (scipy.signal.lfilter convention) ------
+        y = h
+        if S[S_DYN_ON] != 0.0:
+            y = dyn_b[0] * h + dyn_state[0]
+            for k in range(n_dyn - 1):
+                dyn_state[k] = dyn_b[k + 1] * h + dyn_state[k + 1] - dyn_a[k + 1] * y
+            dyn_state[n_dyn - 1] = dyn_b[n_dyn] * h - dyn_a[n_dyn] * y
+        y += S[S_TEMP_STRAIN] * temp
+        out_true[n] = y
+        # -- sensor -------------------------------------------------------------------------
+        meas = y + S[S_NOISE_STD] * noise[n]
+        if S[S_QUANT] > 0.0:
+            meas = S[S_QUANT] * math.floor(meas / S[S_QUANT] + 0.5)
+        if meas < S[S_RANGE_LO] or meas > S[S_RANGE_HI]:
+            if S[S_RANGE_NAN] != 0.0:
+                meas = math.nan
+            else:
+                meas = min(max(meas, S[S_RANGE_LO]), S[S_RANGE_HI])
+        out_measured[n] = meas
+        X[X_N] += 1.0
+
+
+@njit(cache=True)
+def command_path(
+    command: np.ndarray, lo: float, hi: float, max_step: float, state: np.ndarray, out: np.ndarray
+) -> int:
+    """The rig's single actuator path: clamp to [lo, hi], then slew-limit to max_step per sample.
+
+    ``state[0]`` is the last applied value. Returns how many samples had to be changed, so the
+    caller can say so; ``out`` receives what was really applied.
+    """
+    last = state[0]
+    changed = 0
+    for n in range(command.shape[0]):
+        x = command[n]
+        if x != x:  # NaN: hold the last value rather than pass garbage to the amplifier
+            x = last
+        c = min(max(x, lo), hi)
+        c = min(max(c, last - max_step), last + max_step)
+        if c != command[n]:
+            changed += 1
+        out[n] = c
+        last = c
+    state[0] = last
+    return changed
