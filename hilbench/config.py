@@ -35,6 +35,7 @@ RIG_SCHEMA = {
     "sample_rate_hz": Key("number", required=True, minimum=0, exclusive_minimum=True),
     "realtime": Key("bool", default=False, doc="pace a simulated rig at its sample rate"),
     "seed": Key("int", default=0),
+    "extends": Key("str", default="", doc="base rig (name or path) whose tables this file overrides"),
 }
 
 ACTUATOR_SCHEMA = {
@@ -312,11 +313,42 @@ def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str) -> Non
         raise ConfigError("[plant.creep] gains and time_constants_s must have the same length", where=file)
 
 
+def _deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _deep_merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _read_with_bases(path: Path, seen: tuple[Path, ...] = ()) -> tuple[str, dict[str, Any]]:
+    """Read a rig file; a ``[rig] extends`` names a base whose tables this file overrides."""
+    text, data = read_toml(path)
+    rig = data.get("rig")
+    base_name = rig.get("extends") if isinstance(rig, dict) else None
+    if not base_name:
+        return text, data
+    if not isinstance(base_name, str):
+        raise ConfigError(f"[rig] extends: expected a rig name or path, got {base_name!r}", where=str(path))
+    local = path.parent / base_name
+    base_path = local if local.exists() else (path.parent / f"{base_name}.toml")
+    if not base_path.exists():
+        base_path = resolve_rig_path(base_name)
+    if base_path.resolve() in seen:
+        raise ConfigError(f"[rig] extends: {base_name!r} extends itself in a loop", where=str(path))
+    base_text, base_data = _read_with_bases(base_path, (*seen, path.resolve()))
+    merged = _deep_merge(base_data, data)
+    merged["rig"] = {k: v for k, v in merged["rig"].items() if k != "extends"}
+    return f"{text}\n# ---- extends {base_path.name} ----\n{base_text}", merged
+
+
 def load_rig(name_or_path: str | Path) -> RigConfig:
     """Load and validate a rig config; raises :class:`ConfigError` with file, key and expectation."""
     path = resolve_rig_path(str(name_or_path))
     file = str(path)
-    text, data = read_toml(path)
+    text, data = _read_with_bases(path)
     top = check_table(
         data,
         {"rig": Key("table", required=True), "actuator": Key("table", required=True),

@@ -26,6 +26,7 @@ import numpy as np
 
 from hilbench import __version__
 from hilbench.errors import DataError
+from hilbench.h5recover import clear_stale_write_flags
 
 FORMAT = "hilbench-recording"
 FORMAT_VERSION = 1
@@ -148,6 +149,9 @@ class RecordingWriter:
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
         if self.path.exists():
+            # A writer killed in SWMR mode leaves its write flags set; clear them when no live
+            # process holds the file, so the recording can be appended to again.
+            clear_stale_write_flags(self.path)
             check_recording(self.path)
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -189,6 +193,7 @@ class RecordingWriter:
             group.attrs["reason"] = ""
             group.attrs["rig"] = rig_toml
             group.attrs["devices"] = json.dumps(devices if devices is not None else [])
+            group.attrs["channels"] = json.dumps([c.name for c in channels])  # the intended order
             for key, value in (extra_attrs or {}).items():
                 group.attrs[key] = value
             for c in channels:
@@ -238,7 +243,7 @@ def check_recording(path: Path) -> None:
     if not path.exists():
         raise DataError("file not found", where=str(path))
     try:
-        with h5py.File(path, "r") as f:
+        with h5py.File(path, "r", swmr=True) as f:
             fmt = _text(f.attrs.get("format", ""))
             version = _text(f.attrs.get("format_version", -1))
     except OSError as exc:
@@ -315,7 +320,10 @@ class Recording:
             for name in sorted(f["runs"].keys()):
                 group = f["runs"][name]
                 run = Run(self.path, name, {k: _text(v) for k, v in group.attrs.items()})
-                for cname, ds in group.items():
+                order = json.loads(run.attrs.get("channels", "[]") or "[]")
+                names = [c for c in order if c in group] + sorted(c for c in group if c not in order)
+                for cname in names:
+                    ds = group[cname]
                     if isinstance(ds, h5py.Dataset):
                         run.units[cname] = str(_text(ds.attrs.get("units", "")))
                         run.descriptions[cname] = str(_text(ds.attrs.get("description", "")))

@@ -274,11 +274,12 @@ class Plant:
 def dead_zone_operators(mu: list[float], n: int) -> tuple[np.ndarray, np.ndarray]:
     """Thresholds and weights of 001's D shape function (eq. 28-31), i = -n..n.
 
-    r_i = mu5 i, g_i = -mu6 exp(-mu7 i) for i >= 0; r_i = mu8 i, g_i = mu9 exp(-mu10 i) for i < 0.
+    r_i = mu5 i, g_i = -mu6 exp(-mu7 i) for i >= 0; r_i = mu8 i, g_i = mu9 exp(-mu10 |i|) for i < 0.
     """
     mu5, mu6, mu7, mu8, mu9, mu10 = mu
     idx_pos = np.arange(0, n + 1, dtype=float)
     idx_neg = np.arange(-n, 0, dtype=float)
     r = np.concatenate([mu8 * idx_neg, mu5 * idx_pos])
-    g = np.concatenate([mu9 * np.exp(-mu10 * idx_neg), -mu6 * np.exp(-mu7 * idx_pos)])
+    # Eq. 31 read with |i| (see configs/gmm-issf-duhem.toml, "choices"): weights decay on both sides.
+    g = np.concatenate([mu9 * np.exp(-mu10 * np.abs(idx_neg)), -mu6 * np.exp(-mu7 * idx_pos)])
     return r, g

@@ -1,0 +1,343 @@
+"""The ``hilbench`` command line.
+
+Conventions (DESIGN.md, "Command line"): every command that produces results takes ``--json`` and
+then prints exactly one JSON document on stdout; progress goes to stderr; an error the user can fix
+prints one line (and a hint) on stderr and exits with status 2, no traceback unless ``--debug``.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+import time
+import traceback
+from collections.abc import Callable
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Optional, TypeVar
+
+import typer
+
+from hilbench import __version__
+from hilbench.errors import UserError
+
+app = typer.Typer(
+    name="hilbench",
+    help="Hardware-in-the-loop bench for smart-material actuators: sweep simulated or real rigs, "
+    "record crash-safe HDF5, import measured data, plot loops.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+DEFAULT_RIG = "gmm-gu2016"
+_state = {"debug": False}
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _fail(message: str, hint: str | None = None, code: int = 2) -> None:
+    typer.echo(f"error: {message}", err=True)
+    if hint:
+        typer.echo(f"hint: {hint}", err=True)
+    raise typer.Exit(code)
+
+
+def user_errors(func: F) -> F:
+    """Turn :class:`UserError` into one line on stderr and exit status 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except UserError as exc:
+            if _state["debug"]:
+                traceback.print_exc()
+            _fail(exc.line(), exc.hint)
+        except KeyboardInterrupt:
+            _fail("interrupted", code=130)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _print_json(document: Any) -> None:
+    sys.stdout.write(json.dumps(document, indent=2, default=str) + "\n")
+    sys.stdout.flush()
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"hilbench {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def main_options(
+    debug: bool = typer.Option(False, "--debug", help="Show tracebacks for errors."),
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
+) -> None:
+    _state["debug"] = debug
+
+
+class _Progress:
+    """A progress bar on stderr, one task per run."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self._bar: Any = None
+        self._task: Any = None
+        self._run = 0
+
+    def __enter__(self) -> _Progress:
+        if self.enabled:
+            from rich.console import Console
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            self._bar = Progress(
+                TextColumn("[bold]{task.description}"), BarColumn(), TextColumn("{task.percentage:>5.1f}%"),
+                TimeRemainingColumn(), console=Console(stderr=True), transient=False,
+            )
+            self._bar.__enter__()
+        return self
+
+    def __call__(self, index: int, label: str, done: int, total: int) -> None:
+        if self._bar is None:
+            return
+        if index != self._run:
+            self._run = index
+            self._task = self._bar.add_task(f"run {index} {label}", total=total)
+        self._bar.update(self._task, completed=done)
+
+    def __exit__(self, *exc: Any) -> None:
+        if self._bar is not None:
+            self._bar.__exit__(*exc)
+
+
+def _default_output(rig_name: str) -> Path:
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    return Path("recordings") / f"{rig_name}-{stamp}.h5"
+
+
+@app.command()
+@user_errors
+def sweep(
+    config: str = typer.Argument(..., help="Rig config: a TOML path or a built-in rig name (see `hilbench rigs`)."),
+    plan: Optional[Path] = typer.Option(None, "--plan", "-p", help="Plan file (TOML with [[runs]] tables)."),
+    excitation: list[str] = typer.Option(
+        [], "--excitation", "-e",
+        help="Run in compact form, e.g. 'sine:amplitude=3,frequency_hz=1,cycles=5'; '|' sweeps "
+        "(amplitude=1|2|3), '/' makes lists. Repeatable.",
+    ),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Recording (.h5); appended when it exists."),
+    realtime: Optional[bool] = typer.Option(
+        None, "--realtime/--no-realtime", help="Pace a simulated rig at its sample rate (default: the config's)."
+    ),
+    check_only: bool = typer.Option(False, "--check", help="Check the plan against the limits and stop."),
+    log: Optional[Path] = typer.Option(None, "--log", help="Append a JSON line per event (run start, flush, end)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Run a characterisation sweep on a rig and record it.
+
+    The plan is the config's [[plan.runs]], a --plan file, or --excitation runs. The whole plan is
+    checked against the actuator's range and slew limit before anything moves.
+    """
+    from hilbench.config import load_rig
+    from hilbench.plan import check_plan, expand_runs, load_plan_file, plan_from_compact
+    from hilbench.rig import Rig
+    from hilbench.runner import run_plan
+
+    rig_config = load_rig(config)
+    if plan is not None and excitation:
+        raise UserError("give either --plan or --excitation, not both")
+    if plan is not None:
+        runs = load_plan_file(plan)
+    elif excitation:
+        runs = plan_from_compact(excitation)
+    elif rig_config.plan:
+        runs = expand_runs(rig_config.plan, file=rig_config.path)
+    else:
+        raise UserError(
+            "the rig config has no [[plan.runs]]", where=rig_config.path,
+            hint="give --plan FILE or --excitation 'sine:amplitude=1,frequency_hz=1,cycles=3'",
+        )
+    totals = check_plan(runs, rig_config.actuator, rig_config.sample_rate_hz)
+    if check_only:
+        document = {"rig": rig_config.name, "plan_ok": True, **totals, "labels": [r.label for r in runs]}
+        if as_json:
+            _print_json(document)
+        else:
+            typer.echo(f"plan OK: {totals['runs']} runs, {totals['samples']} samples, {totals['duration_s']:.3f} s")
+        return
+    out = output or _default_output(rig_config.name)
+    rig = Rig(rig_config)
+    log_file = open(log, "a", encoding="utf-8") if log is not None else None  # noqa: SIM115
+
+    def on_flush(group: str, n: int) -> None:
+        if log_file is not None:
+            log_file.write(json.dumps({"event": "flushed", "run": group, "samples": n, "t": time.time()}) + "\n")
+            log_file.flush()
+
+    started = time.monotonic()
+    try:
+        with _Progress(not quiet) as progress:
+            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_flush=on_flush)
+    finally:
+        if log_file is not None:
+            log_file.close()
+    elapsed = time.monotonic() - started
+    document = {
+        "file": str(out),
+        "rig": rig_config.name,
+        "status": result.status,
+        "elapsed_s": round(elapsed, 3),
+        "clamped_samples": rig.clamped_samples,
+        "runs": [{"name": r.group, "label": r.label, "status": r.status, "samples": r.samples, "reason": r.reason}
+                 for r in result.runs],
+    }
+    if as_json:
+        _print_json(document)
+    else:
+        typer.echo(f"{out}: {len(result.runs)} runs, status {result.status}, {elapsed:.1f} s")
+        for r in result.runs:
+            typer.echo(f"  {r.group:40s} {r.status:9s} {r.samples:>10d} samples")
+    if result.status != "complete":
+        raise typer.Exit(1)
+
+
+@app.command()
+@user_errors
+def show(
+    file: Path = typer.Argument(..., help="Recording (.h5)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """List the runs of a recording: status, sample rate, samples, channels and units."""
+    from hilbench.recording import Recording
+
+    summary = Recording(file).summary()
+    if as_json:
+        _print_json(summary)
+        return
+    typer.echo(f"{summary['file']}  ({summary['format']} v{summary['format_version']}, "
+               f"hilbench {summary['hilbench_version']}, created {summary['created']})")
+    for run in summary["runs"]:
+        duration = f"{run['duration_s']:.3f} s" if run["duration_s"] is not None else "?"
+        typer.echo(f"  {run['name']}: {run['status']}, {run['n_samples']} samples at {run['sample_rate_hz']:g} Hz "
+                   f"({duration}), experiment {run['experiment']!r}")
+        channels = ", ".join(f"{c['name']} [{c['units']}]" for c in run["channels"])
+        typer.echo(f"      channels: {channels}")
+        if run["status"] not in ("complete",) and run["reason"]:
+            typer.echo(f"      reason: {run['reason'].strip().splitlines()[-1]}")
+
+
+@app.command("import")
+@user_errors
+def import_(
+    sources: list[Path] = typer.Argument(..., help="CSV or MATLAB .mat files, one run each."),
+    output: Path = typer.Option(..., "--output", "-o", help="Recording (.h5); appended when it exists."),
+    run: list[str] = typer.Option([], "--run", help="Run name per source (default: the file name)."),
+    rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate, Hz, when there is no time column."),
+    map_: list[str] = typer.Option(
+        [], "--map", help="Rename a column: SRC=DST or SRC=DST[unit]; SRC may be a 0-based column index or, "
+        "for dSPACE exports, Y(1) or a signal name. Repeatable.",
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Import measured data (CSV, MATLAB, dSPACE ControlDesk .mat) into a recording."""
+    from hilbench.importers import import_files, parse_mapping
+
+    names = import_files(sources, output, run_names=run or None, rate_hz=rate, mapping=parse_mapping(map_))
+    if as_json:
+        _print_json({"file": str(output), "runs": names})
+    else:
+        typer.echo(f"{output}: imported {len(names)} run(s): {', '.join(names)}")
+
+
+@app.command()
+@user_errors
+def plot(
+    file: Path = typer.Argument(..., help="Recording (.h5)."),
+    run: list[str] = typer.Option([], "--run", help="Run name, label or number (default: all). Repeatable."),
+    output: Path = typer.Option(..., "--output", "-o", help="PNG to write."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Plot time traces and input-output loops of a recording's runs."""
+    from hilbench.plotting import plot_runs
+
+    png = plot_runs(file, output, runs=run or None)
+    if as_json:
+        _print_json({"file": str(file), "png": str(png)})
+    else:
+        typer.echo(f"wrote {png}")
+
+
+@app.command()
+@user_errors
+def rigs(as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout.")) -> None:
+    """List the built-in rig configs with the paper each follows."""
+    from hilbench.config import builtin_rigs, load_rig
+
+    entries = []
+    for name, path in sorted(builtin_rigs().items()):
+        cfg = load_rig(path)
+        entries.append({"name": name, "paper": cfg.paper, "description": cfg.description, "follows": cfg.follows,
+                        "path": str(path)})
+    if as_json:
+        _print_json(entries)
+        return
+    for e in entries:
+        typer.echo(f"{e['name']:24s} paper {e['paper'] or '-':4s} {e['description']}")
+
+
+@app.command()
+@user_errors
+def demo(
+    output_dir: Path = typer.Option(Path("recordings"), "--output-dir", help="Where demo.h5 and demo.png go."),
+    rig: str = typer.Option(DEFAULT_RIG, "--rig", help="Built-in rig name or config path."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Sweep the built-in simulated rig into recordings/demo.h5 and plot its loops to demo.png."""
+    from hilbench.config import load_rig
+    from hilbench.plan import expand_runs
+    from hilbench.plotting import plot_runs
+    from hilbench.recording import Recording
+    from hilbench.rig import Rig
+    from hilbench.runner import run_plan
+
+    rig_config = load_rig(rig)
+    runs = expand_runs(rig_config.plan, file=rig_config.path)
+    output_dir.mkdir(parents=True, exist_ok=True)
+    h5 = output_dir / "demo.h5"
+    h5.unlink(missing_ok=True)  # the demo starts afresh each time
+    started = time.monotonic()
+    with _Progress(not quiet) as progress:
+        result = run_plan(Rig(rig_config), runs, h5, experiment="demo", realtime=False, progress=progress)
+    png = plot_runs(h5, output_dir / "demo.png")
+    summary = Recording(h5).summary()
+    document = {
+        "rig": rig_config.name,
+        "paper": rig_config.paper,
+        "file": str(h5),
+        "png": str(png),
+        "status": result.status,
+        "elapsed_s": round(time.monotonic() - started, 3),
+        "runs": [{"name": r["name"], "status": r["status"], "n_samples": r["n_samples"]} for r in summary["runs"]],
+    }
+    if as_json:
+        _print_json(document)
+        return
+    typer.echo(f"hilbench demo: rig {rig_config.name} (paper {rig_config.paper}): {rig_config.description}")
+    typer.echo(f"  {len(result.runs)} runs recorded to {h5} ({result.status}), loops plotted to {png}")
+    for r in summary["runs"]:
+        typer.echo(f"  {r['name']:36s} {r['status']:9s} {r['n_samples']:>8d} samples")
+    typer.echo(f"next: hilbench show {h5}   |   hilbench plot {h5} --run 9 -o loop.png")
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()
