@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 
 CHUNK = 65536
-TARGET_PEAK_RSS_MB = 300.0
+TARGET_PEAK_RSS_MB = 300.0  # MB = 10^6 bytes (the stricter reading: 300 MB = 286.1 MiB)
 MB = 1e6
 
 
@@ -204,11 +204,17 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
         now = time.perf_counter()
         if now - last_note[0] > 5.0:
             last_note[0] = now
-            C.note(f"[recording] long run: {done / total:6.1%} ({done:.3g}/{total:.3g}), RSS {_status_kb('VmRSS') / 1024:.0f} MB")
+            C.note(f"[recording] long run: {done / total:6.1%} ({done:.3g}/{total:.3g}), RSS {_status_kb('VmRSS') / 1024:.0f} MiB")
+
+    flush_marks: list[float] = []
+
+    def on_flush(_group: str, _n_flushed: int) -> None:
+        flush_marks.append(time.perf_counter())
 
     t0 = time.perf_counter()
-    result = run_plan(rig, runs, out_path, progress=progress)
+    result = run_plan(rig, runs, out_path, progress=progress, on_flush=on_flush)
     elapsed = time.perf_counter() - t0
+    gaps = np.diff([t0, *flush_marks])
     stop.set()
     thread.join()
     rss_end = _status_kb("VmRSS")
@@ -220,6 +226,8 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
         "samples_recorded": result.runs[0].samples if result.runs else 0,
         "run_plan_s": elapsed,
         "setup_s": setup_s,
+        "flushes_during_run": len(flush_marks),
+        "max_seconds_between_flushes": float(gaps.max()) if gaps.size else None,
         "rss_after_imports_kb": rss_after_imports,
         "rss_after_setup_kb": rss_after_setup,
         "hwm_after_setup_kb": hwm_after_setup,
@@ -235,6 +243,7 @@ def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dic
     out = folder / "long-run.h5"
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rig_path), str(out), str(samples), kind]
     C.note(f"[recording] long run: {samples:.3g} samples ({kind}) through hilbench.runner.run_plan in a child ...")
+    parent_hwm_kb = _status_kb("VmHWM")
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, env=os.environ.copy())
     wall = time.perf_counter() - t0
@@ -244,7 +253,7 @@ def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dic
     if proc.returncode != 0:
         return {"error": f"child exited with {proc.returncode}", "stdout": proc.stdout[-2000:]}
     child = json.loads(proc.stdout.strip().splitlines()[-1])
-    peak_mb = child["vmhwm_kb"] / 1024
+    peak_mib = child["vmhwm_kb"] / 1024
     return {
         "what": "hilbench.runner.run_plan(Rig(load_rig(rig)), [one long run], out.h5) in a child process",
         "excitation": plan_table(kind, samples, C.SAMPLE_RATE_HZ),
@@ -256,16 +265,20 @@ def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dic
         "run_plan_s": child["run_plan_s"],
         "samples_per_s_end_to_end": child["samples_recorded"] / child["run_plan_s"] if child["run_plan_s"] > 0 else None,
         "child_wall_s": wall,
-        "peak_rss_MB": peak_mb,
-        "peak_rss_MB_ru_maxrss_children": children_maxrss_kb / 1024,
-        "rss_after_imports_MB": child["rss_after_imports_kb"] / 1024,
-        "rss_after_setup_MB": child["rss_after_setup_kb"] / 1024,
-        "peak_rss_before_run_MB": child["hwm_after_setup_kb"] / 1024,
-        "peak_rss_sampled_during_run_MB": child["peak_rss_sampled_during_run_kb"] / 1024,
-        "growth_during_run_MB": (child["vmhwm_kb"] - child["rss_after_setup_kb"]) / 1024,
-        "rss_end_MB": child["rss_end_kb"] / 1024,
-        "note": "MB here = MiB (VmHWM/ru_maxrss are in KiB); peak_rss_MB is the child's VmHWM at the end, "
-                "i.e. imports + setup + run_plan",
+        "flushes_during_run": child["flushes_during_run"],
+        "max_seconds_between_flushes": child["max_seconds_between_flushes"],
+        "peak_rss_MB": peak_mib * 1.048576,
+        "peak_rss_MiB": peak_mib,
+        "rss_after_imports_MiB": child["rss_after_imports_kb"] / 1024,
+        "rss_after_setup_MiB": child["rss_after_setup_kb"] / 1024,
+        "growth_during_run_MiB": (child["vmhwm_kb"] - child["rss_after_setup_kb"]) / 1024,
+        "peak_rss_sampled_during_run_MiB": child["peak_rss_sampled_during_run_kb"] / 1024,
+        "rss_end_MiB": child["rss_end_kb"] / 1024,
+        "ru_maxrss_children_MiB": children_maxrss_kb / 1024,
+        "parent_peak_rss_at_spawn_MiB": parent_hwm_kb / 1024,
+        "note": "peak_rss_MB/peak_rss_MiB: the child's VmHWM at the end (imports + rig setup + run_plan); "
+                "MB = 10^6 bytes, the other *_MiB figures in MiB. ru_maxrss_children is max(child, parent at spawn): Linux folds the "
+                "address space the child was (v)forked from into it, so it is only an upper bound here.",
     }
 
 

@@ -20,6 +20,7 @@ from typing import Any
 
 from hilbench.errors import ConfigError
 from hilbench.schema import Key, check_table
+from hilbench.sim.dynamics import discretize_dynamics
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -254,7 +255,7 @@ def read_toml(path: Path) -> tuple[str, dict[str, Any]]:
         raise ConfigError(f"not valid TOML: {exc}", where=str(path)) from None
 
 
-def _check_plant(plant: dict[str, Any], file: str) -> dict[str, dict[str, Any]]:
+def _check_plant(plant: dict[str, Any], file: str, sample_rate_hz: float) -> dict[str, dict[str, Any]]:
     checked_top = check_table(
         plant, {name: Key("table") for name in PLANT_SCHEMA}, file=file, table="plant"
     )
@@ -273,11 +274,11 @@ def _check_plant(plant: dict[str, Any], file: str) -> dict[str, dict[str, Any]]:
         out[name] = values
     if "hysteresis" not in out:
         raise ConfigError("[plant] needs a [plant.hysteresis] table (model = 'linear' for none)", where=file)
-    _check_plant_consistency(out, file)
+    _check_plant_consistency(out, file, sample_rate_hz)
     return out
 
 
-def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str) -> None:
+def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str, sample_rate_hz: float) -> None:
     h = plant["hysteresis"]
     if len(h["thresholds"]) != len(h["weights"]):
         raise ConfigError(
@@ -308,6 +309,10 @@ def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str) -> Non
         for key in need_keys:
             if d[key] is None:
                 raise ConfigError(f"[plant.dynamics] missing key {key!r} (needed by kind {d['kind']!r})", where=file)
+        try:
+            discretize_dynamics(d, sample_rate_hz)
+        except ConfigError as exc:
+            raise ConfigError(exc.message, where=file) from None
     c = plant.get("creep")
     if c is not None and len(c["gains"]) != len(c["time_constants_s"]):
         raise ConfigError("[plant.creep] gains and time_constants_s must have the same length", where=file)
@@ -385,7 +390,7 @@ def load_rig(name_or_path: str | Path) -> RigConfig:
     if simulated:
         if top["plant"] is None:
             raise ConfigError("driver = 'sim' needs a [plant] table describing the simulated physics", where=file)
-        plant = _check_plant(top["plant"], file)
+        plant = _check_plant(top["plant"], file, rig["sample_rate_hz"])
         for s in sensors:
             if s.driver != "sim":
                 raise ConfigError(f"sensor {s.channel!r}: a simulated rig needs driver = 'sim', got {s.driver!r}", where=file)

@@ -274,7 +274,8 @@ def _mat_columns(raw: bytes, where: str) -> tuple[list[_Column], str, dict[str, 
         if hasattr(v, "_fieldnames") and {"X", "Y"} <= set(v._fieldnames)
     }
     if len(captures) > 1:
-        raise DataError(f"{len(captures)} dSPACE captures ({', '.join(captures)}); one per file is supported", where=where)
+        names = ", ".join(captures)
+        raise DataError(f"{len(captures)} dSPACE captures ({names}); one per file is supported", where=where)
     if captures:
         return _dspace_columns(*next(iter(captures.items())), where=where)
     columns = []
@@ -308,7 +309,9 @@ def _dspace_columns(var: str, capture: Any, where: str) -> tuple[list[_Column], 
         unit = getattr(y, "Unit", "")
         unit = unit if isinstance(unit, str) and unit else None
         # Addressable by any trailing path (Måling/In1, In1) or the block name alone.
-        aliases = tuple({"/".join(parts[k:]) for k in range(len(parts))} | {"/".join(parts[k:-1]) for k in range(len(parts) - 1)})
+        trailing = {"/".join(parts[k:]) for k in range(len(parts))}
+        without_port = {"/".join(parts[k:-1]) for k in range(len(parts) - 1)}
+        aliases = tuple(trailing | without_port)
         columns.append(_Column(f"Y({i})", label, None, unit, values=data, aliases=aliases))
     info: dict[str, Any] = {"capture": var}
     date = getattr(getattr(capture, "Capture", None), "DateTime", None)
@@ -346,18 +349,105 @@ def _listing(columns: list[_Column], has_header: bool = True) -> str:
     return ", ".join(parts) or "none"
 
 
-def _sample_rate(time: np.ndarray, where: str, what: str) -> float:
+def _sample_rate(time: np.ndarray, where: str) -> float:
     """Sample rate in Hz from a strictly increasing time vector in s.
 
     The mean step is used when it agrees with the median step within 1 % (it is exact for clocks that
     jitter by a least significant digit, as dSPACE and many loggers do); otherwise, with gaps, the median.
     """
     if len(time) < 2:
-        raise DataError(f"{what}: need at least 2 samples to know the sample rate, got {len(time)}", where=where)
-    dt = np.diff(time)
-    median = float(np.median(dt))
+        raise DataError(f"need at least 2 samples to know the sample rate, got {len(time)}", where=where)
+    median = float(np.median(np.diff(time)))
     mean = float(time[-1] - time[0]) / (len(time) - 1)
     return 1.0 / (mean if abs(mean / median - 1.0) < 0.01 else median)
+
+
+@dataclass
+class _Channels:
+    """Channels picked from a source: float64 data, units, descriptions and the source key of each."""
+
+    data: dict[str, np.ndarray] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    descriptions: dict[str, str] = field(default_factory=dict)
+    sources: dict[str, str] = field(default_factory=dict)
+
+
+def _pick(
+    columns: list[_Column],
+    mapping: dict[str, str],
+    fmt: str,
+    line_numbers: list[int],
+    listing: str,
+    path: Path,
+    where: str,
+) -> _Channels:
+    """Apply the mapping, parse the chosen columns and give them units (time converted to s)."""
+    targets: dict[int, tuple[str, str | None]] = {}  # id(column) -> (channel, unit override)
+    for key, value in mapping.items():
+        col = _resolve(columns, key, where, listing)
+        if id(col) in targets:
+            raise DataError(f"--map: column {col.label} is mapped twice", where=where)
+        targets[id(col)] = parse_target(value, f"--map {key}={value}")
+    # In .mat files a mapping selects variables (they often hold many unrelated vectors); the time
+    # base (dSPACE X.Data, a variable named `time`) stays unless a mapping gives another one.
+    selecting = fmt != "csv" and bool(mapping)
+    mapped_names = {name for name, _ in targets.values()}
+
+    out = _Channels()
+    for col in columns:
+        mapped = id(col) in targets
+        name, unit = targets.get(id(col), (col.name, None))
+        if name == DROP or name is None:
+            continue
+        if selecting and not mapped and (name != "time" or "time" in mapped_names):
+            continue
+        if col.cells is not None and all(c == "" for c in col.cells):
+            if mapped or name in ("time", *REQUIRED):
+                raise DataError(f"column {col.label} ({name}) has no values", where=where)
+            continue  # e.g. a pandas index column written without values
+        if name in out.data:
+            raise DataError(f"two columns give channel {name!r}: {out.sources[name]} and {col.label}", where=where)
+        values = col.values if col.values is not None else _parse_cells(col, name, line_numbers, where)
+        if not np.all(np.isfinite(values)):  # only .mat data get here: CSV cells were checked one by one
+            bad = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise DataError(f"{col.label} ({name}): {values[bad]} at element {bad + 1}, expected a finite number",
+                            where=where)
+        if unit is None:
+            unit = col.unit if col.unit is not None else CANONICAL_CHANNELS.get(name, ("", ""))[0]
+        description = f"imported from {path.name}, {col.label}"
+        if name == "time" and unit != "s":
+            if unit not in TIME_UNITS_S:
+                raise DataError(f"time unit {unit!r} not understood (expected one of: {', '.join(TIME_UNITS_S)})",
+                                where=where)
+            values, description, unit = values * TIME_UNITS_S[unit], f"{description}, converted from {unit} to s", "s"
+        out.data[name], out.units[name], out.descriptions[name], out.sources[name] = values, unit, description, col.key
+    return out
+
+
+def _add_time(ch: _Channels, rate_hz: float | None, line_numbers: list[int], where: str) -> float:
+    """Check the time channel, or make one from ``rate_hz``; returns the sample rate in Hz."""
+    n = len(ch.data["input"])
+    if "time" not in ch.data:
+        if rate_hz is None:
+            raise DataError("no time column: give the sample rate (--rate HZ) or map a time column", where=where)
+        ch.data["time"] = np.arange(n, dtype=np.float64) / rate_hz
+        ch.units["time"] = "s"
+        ch.descriptions["time"] = f"sample index / {rate_hz:g} Hz (the source has no time column)"
+        ch.sources["time"] = f"rate {rate_hz:g} Hz"
+        return float(rate_hz)
+    time = ch.data["time"]
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        i = int(np.flatnonzero(steps <= 0)[0]) + 1
+        source = "X.Data" if ch.sources["time"] == "X" else ch.sources["time"]
+        at = f"line {line_numbers[i]}" if line_numbers else f"{source}({i + 1})"
+        raise DataError(f"time is not strictly increasing at {at} ({time[i]:.10g} after {time[i - 1]:.10g})",
+                        where=where)
+    rate = _sample_rate(time, where)
+    if rate_hz is not None and abs(rate / rate_hz - 1.0) > 0.01:
+        raise DataError(f"the time column gives {rate:.6g} Hz but the rate given is {rate_hz:.6g} Hz; drop one",
+                        where=where)
+    return rate
 
 
 def load_source(
@@ -374,7 +464,8 @@ def load_source(
     """
     path = Path(source)
     where = str(source)
-    mapping = dict(mapping or {})
+    if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise DataError(f"sample rate must be a positive number of Hz, got {rate_hz}", where="--rate")
     raw = _read_bytes(path, where)
     line_numbers: list[int] = []
     has_header = True
@@ -384,96 +475,31 @@ def load_source(
         columns, line_numbers, has_header = _csv_columns(raw, where)
         fmt, info = "csv", {}
     listing = _listing(columns, has_header)
-
-    targets: dict[int, tuple[str, str | None]] = {}  # id(column) -> (channel, unit override)
-    for key, value in mapping.items():
-        col = _resolve(columns, key, where, listing)
-        if id(col) in targets:
-            raise DataError(f"--map: column {col.label} is mapped twice", where=where)
-        targets[id(col)] = parse_target(value, f"--map {key}={value}")
-
-    # In .mat files a mapping selects variables (they often hold many unrelated vectors); the time
-    # base (dSPACE X.Data, a variable named `time`) stays unless a mapping gives another one.
-    explicit_selection = fmt != "csv" and bool(mapping)
-    mapped_names = {name for name, _ in targets.values()}
-    data: dict[str, np.ndarray] = {}
-    units: dict[str, str] = {}
-    descriptions: dict[str, str] = {}
-    sources: dict[str, str] = {}
-    for col in columns:
-        mapped = id(col) in targets
-        name, unit = targets.get(id(col), (col.name, None))
-        if name == DROP or name is None:
-            continue
-        if explicit_selection and not mapped and (name != "time" or "time" in mapped_names):
-            continue
-        if col.cells is not None and all(c == "" for c in col.cells):
-            if mapped or name in ("time", *REQUIRED):
-                raise DataError(f"column {col.label} ({name}) has no values", where=where)
-            continue  # e.g. a pandas index column written without values
-        if name in data:
-            raise DataError(f"two columns give channel {name!r}: {sources[name]} and {col.label}", where=where)
-        values = col.values if col.values is not None else _parse_cells(col, name, line_numbers, where)
-        if col.cells is None and not np.all(np.isfinite(values)):
-            bad = int(np.flatnonzero(~np.isfinite(values))[0])
-            raise DataError(f"{col.label} ({name}): {values[bad]} at element {bad + 1}, expected a finite number", where=where)
-        if unit is None:
-            unit = col.unit if col.unit is not None else CANONICAL_CHANNELS.get(name, ("", ""))[0]
-        descriptions[name] = f"imported from {path.name}, {col.label}"
-        if name == "time" and unit != "s":
-            if unit not in TIME_UNITS_S:
-                raise DataError(f"time unit {unit!r} not understood (expected one of: {', '.join(TIME_UNITS_S)})", where=where)
-            values = values * TIME_UNITS_S[unit]
-            descriptions[name] += f", converted from {unit} to s"
-            unit = "s"
-        data[name] = values
-        units[name] = unit
-        sources[name] = col.key
+    ch = _pick(columns, dict(mapping or {}), fmt, line_numbers, listing, path, where)
 
     for required in REQUIRED:
-        if required not in data:
+        if required not in ch.data:
             raise DataError(
                 f"missing column {required!r} (columns: {listing}); map one with --map SRC={required}", where=where
             )
-    lengths = {name: len(v) for name, v in data.items()}
+    lengths = {name: len(v) for name, v in ch.data.items()}
     if len(set(lengths.values())) != 1:
-        detail = ", ".join(f"{sources[n]} ({n}) {k}" for n, k in lengths.items())
+        detail = ", ".join(f"{ch.sources[name]} ({name}) {k}" for name, k in lengths.items())
         raise DataError(f"channels differ in length: {detail}", where=where)
-    n = next(iter(lengths.values()))
-    if n == 0:
+    if lengths["input"] == 0:
         raise DataError("no samples", where=where)
+    rate = _add_time(ch, rate_hz, line_numbers, where)
 
-    if "time" in data:
-        time = data["time"]
-        steps = np.diff(time)
-        if np.any(steps <= 0):
-            i = int(np.flatnonzero(steps <= 0)[0]) + 1
-            at = f"line {line_numbers[i]}" if line_numbers else f"{sources['time'] if sources['time'] != 'X' else 'X.Data'}({i + 1})"
-            raise DataError(f"time is not strictly increasing at {at} ({time[i]:.10g} after {time[i - 1]:.10g})", where=where)
-        rate = _sample_rate(time, where, "time")
-        if rate_hz is not None and abs(rate / rate_hz - 1.0) > 0.01:
-            raise DataError(f"the time column gives {rate:.6g} Hz but the rate given is {rate_hz:.6g} Hz; drop one", where=where)
-    else:
-        if rate_hz is None:
-            raise DataError("no time column: give the sample rate (--rate HZ) or map a time column", where=where)
-        if not np.isfinite(rate_hz) or rate_hz <= 0:
-            raise DataError(f"sample rate must be a positive number of Hz, got {rate_hz}", where=where)
-        rate = float(rate_hz)
-        data["time"] = np.arange(n, dtype=np.float64) / rate
-        units["time"] = "s"
-        descriptions["time"] = f"sample index / {rate:g} Hz (the source has no time column)"
-        sources["time"] = f"rate {rate:g} Hz"
-
-    order = ["time", "input", "output"] + [k for k in data if k not in ("time", "input", "output")]
+    order = ["time", "input", "output"] + [k for k in ch.data if k not in ("time", "input", "output")]
     digest = _sha256(raw)
     excitation = {"kind": "imported", "source": path.name, "sha256": digest, "format": fmt,
-                  "channels": {k: sources[k] for k in order}, **info}
+                  "channels": {k: ch.sources[k] for k in order}, **info}
     return ImportedRun(
         source=path,
         label=label if label is not None else path.stem,
-        data={k: data[k] for k in order},
-        units={k: units[k] for k in order},
-        descriptions={k: descriptions[k] for k in order},
+        data={k: ch.data[k] for k in order},
+        units={k: ch.units[k] for k in order},
+        descriptions={k: ch.descriptions[k] for k in order},
         sample_rate_hz=rate,
         sha256=digest,
         excitation=excitation,

@@ -9,11 +9,15 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hilbench.errors import DataError
 from hilbench.recording import Recording, Run
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 MAX_RUNS = 12
 #: Channels drawn in the trace panel already; everything else goes to the auxiliary panel.
@@ -66,6 +70,22 @@ def plot_runs(
     runs by name, label or 1-based index (default: all, at most 12); runs longer than
     ``max_points`` samples are drawn with every k-th sample.
     """
+    import matplotlib.pyplot as plt
+
+    fig = make_figure(path, runs=runs, max_points=max_points)
+    out = Path(output_png)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        fig.savefig(out, dpi=100)
+    finally:
+        plt.close(fig)
+    return out
+
+
+def make_figure(
+    path: str | os.PathLike[str], *, runs: list[str] | None = None, max_points: int = 20000
+) -> Figure:
+    """The figure :func:`plot_runs` saves (Agg backend); close it with ``plt.close(fig)``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -86,11 +106,7 @@ def plot_runs(
         _draw_run(run, row, has_aux, max_points)
     fig.suptitle(f"{recording.path.name}{note}", fontsize=12)
     fig.tight_layout()
-    out = Path(output_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=100)
-    plt.close(fig)
-    return out
+    return fig
 
 
 def _draw_run(run: Run, row: np.ndarray, has_aux: bool, max_points: int) -> None:
@@ -104,7 +120,7 @@ def _draw_run(run: Run, row: np.ndarray, has_aux: bool, max_points: int) -> None
         t = np.arange(n) / rate if rate > 0 else np.arange(n, dtype=float)
         t_label = "time [s]" if rate > 0 else "sample"
     t = t[::step]
-    title = f"{run.name}  ({n} samples, {rate:g} Hz{', every %d-th drawn' % step if step > 1 else ''})"
+    title = f"{run.name}  ({n} samples, {rate:g} Hz{f', 1 in {step} drawn' if step > 1 else ''})"
 
     ax_in = row[0]
     ax_out = ax_in.twinx()
@@ -131,7 +147,7 @@ def _draw_run(run: Run, row: np.ndarray, has_aux: bool, max_points: int) -> None
         if aux:
             units = {run.units[c] for c in aux}
             ax_aux.set_ylabel(f"[{units.pop()}]" if len(units) == 1 and "" not in units else "auxiliary")
-            ax_aux.legend(loc="upper left", fontsize=8)
+            ax_aux.legend(loc="best", fontsize=8)
         else:
             ax_aux.text(0.5, 0.5, "no auxiliary channels", ha="center", va="center", transform=ax_aux.transAxes)
         ax_aux.set_xlabel(t_label)

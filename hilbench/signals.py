@@ -135,9 +135,14 @@ class RampedSine(Excitation):
 
     def values(self, t: np.ndarray) -> np.ndarray:
         p = self.params
-        # The envelope moves linearly in time, so successive cycle peaks form an arithmetic series
-        # and the signal has no jump at cycle boundaries whatever the phase.
-        amp = p["amplitude_start"] + (p["amplitude_end"] - p["amplitude_start"]) * t / self.duration_s()
+        # The envelope moves linearly in time (no jump at cycle boundaries whatever the phase) and
+        # passes through amplitude_start at the first positive peak and amplitude_end at the last,
+        # so the cycle peaks form the arithmetic series of 000 and 002.
+        n_cycles = self.duration_s() * p["frequency_hz"]
+        first_peak = ((90.0 - p["phase_deg"]) / 360.0) % 1.0  # in cycles
+        span = max(math.floor(n_cycles - first_peak - 1e-9), 1)  # cycles between first and last peak
+        slope = (p["amplitude_end"] - p["amplitude_start"]) / span
+        amp = np.maximum(p["amplitude_start"] + slope * (t * p["frequency_hz"] - first_peak), 0.0)
         return p["offset"] + amp * np.sin(2 * np.pi * p["frequency_hz"] * t + np.radians(p["phase_deg"]))
 
 

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from scipy import signal as sps
 
 from hilbench.config import RigConfig, SensorConfig
 from hilbench.errors import ConfigError
 from hilbench.sim import kernels as K
 from hilbench.sim import trajectories
+from hilbench.sim.dynamics import discretize_dynamics
 
 _EMPTY = np.zeros(0)
 
@@ -35,37 +35,6 @@ EFFECT_OF_TABLE = {
     "load": "load",
     "amplifier": "amplifier",
 }
-
-
-def discretize_dynamics(d: dict[str, Any], sample_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Discrete (b, a) of the dynamics table, a[0] = 1; continuous forms by zero-order hold."""
-    if d["kind"] == "discrete":
-        b = np.asarray(d["b"], float)
-        a = np.asarray(d["a"], float)
-        if a.size == 0 or a[0] == 0:
-            raise ConfigError("[plant.dynamics] a: expected a[0] != 0")
-    else:
-        if d["kind"] == "second-order":
-            wn = 2 * math.pi * d["natural_frequency_hz"]
-            num = [d["gain"] * wn**2]
-            den = [1.0, 2 * d["zeta"] * wn, wn**2]
-        else:
-            num, den = list(d["num"]), list(d["den"])
-            if len(num) > len(den):
-                raise ConfigError("[plant.dynamics] transfer-function must be proper (len(num) <= len(den))")
-        bd, ad, _ = sps.cont2discrete((num, den), 1.0 / sample_rate_hz, method="zoh")
-        b = np.asarray(bd, float).ravel()
-        a = np.asarray(ad, float).ravel()
-    b, a = b / a[0], a / a[0]
-    n = max(len(a), len(b))
-    b = np.pad(b, (0, n - len(b)))
-    a = np.pad(a, (0, n - len(a)))
-    if n > 1 and np.any(np.abs(np.roots(a)) >= 1.0):
-        raise ConfigError(
-            f"[plant.dynamics] the discrete dynamics are unstable at {sample_rate_hz:g} Hz "
-            f"(pole magnitudes {np.round(np.abs(np.roots(a)), 4).tolist()}); expected all poles inside the unit circle"
-        )
-    return b, a
 
 
 @dataclass
@@ -218,7 +187,8 @@ class Plant:
         self.time_s = 0.0  # time of the next sample on the current run's clock
         self.samples = 0
         self._rng_output = np.random.default_rng([self.seed, 1])
-        self._rng_aux = np.random.default_rng([self.seed, 2])
+        # One stream per channel, so block and step mode draw each channel's noise in the same order.
+        self._rng_aux = {c: np.random.default_rng([self.seed, 2, k]) for k, c in enumerate(sorted(self.sensors))}
 
     def start_run(self) -> None:
         """Restart the run clock (trajectories of temperature and load start again); memory stays."""
@@ -259,7 +229,10 @@ class Plant:
         return self.simulate(np.array([command], dtype=np.float64))
 
     def _read_aux(self, sensor: SensorConfig, truth: np.ndarray) -> np.ndarray:
-        value = truth + sensor.noise_std * self._rng_aux.standard_normal(truth.shape[0]) if sensor.noise_std > 0 else truth.copy()
+        if sensor.noise_std > 0:
+            value = truth + sensor.noise_std * self._rng_aux[sensor.channel].standard_normal(truth.shape[0])
+        else:
+            value = truth.copy()
         if sensor.quantization > 0:
             value = sensor.quantization * np.floor(value / sensor.quantization + 0.5)
         if sensor.range is not None:

@@ -1,0 +1,1 @@
+"""The simulated plant: numba kernels, effect composition, auxiliary trajectories."""
