@@ -199,9 +199,12 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
     thread = threading.Thread(target=sampler, daemon=True)
     thread.start()
     last_note = [0.0]
+    first_chunk: list[float] = []
 
     def progress(_i: int, _label: str, done: int, total: int) -> None:
         now = time.perf_counter()
+        if not first_chunk:
+            first_chunk.append(now)  # the run's first chunk is recorded (plan check and ramp done)
         if now - last_note[0] > 5.0:
             last_note[0] = now
             C.note(f"[recording] long run: {done / total:6.1%} ({done:.3g}/{total:.3g}), RSS {_status_kb('VmRSS') / 1024:.0f} MiB")
@@ -214,7 +217,10 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
     t0 = time.perf_counter()
     result = run_plan(rig, runs, out_path, progress=progress, on_flush=on_flush)
     elapsed = time.perf_counter() - t0
-    gaps = np.diff([t0, *flush_marks])
+    # Flush gaps from the first recorded chunk on (before it, run_plan checks the whole plan and
+    # nothing has been written yet).
+    start = first_chunk[0] if first_chunk else t0
+    gaps = np.diff([start, *flush_marks])
     stop.set()
     thread.join()
     rss_end = _status_kb("VmRSS")
@@ -226,6 +232,7 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
         "samples_recorded": result.runs[0].samples if result.runs else 0,
         "run_plan_s": elapsed,
         "setup_s": setup_s,
+        "seconds_to_first_chunk": start - t0,
         "flushes_during_run": len(flush_marks),
         "max_seconds_between_flushes": float(gaps.max()) if gaps.size else None,
         "rss_after_imports_kb": rss_after_imports,
@@ -265,6 +272,7 @@ def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dic
         "run_plan_s": child["run_plan_s"],
         "samples_per_s_end_to_end": child["samples_recorded"] / child["run_plan_s"] if child["run_plan_s"] > 0 else None,
         "child_wall_s": wall,
+        "seconds_to_first_chunk": child["seconds_to_first_chunk"],
         "flushes_during_run": child["flushes_during_run"],
         "max_seconds_between_flushes": child["max_seconds_between_flushes"],
         "peak_rss_MB": peak_mib * 1.048576,

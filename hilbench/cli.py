@@ -29,6 +29,7 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
 )
 
 DEFAULT_RIG = "gmm-gu2016"
@@ -239,7 +240,7 @@ def import_(
     run: list[str] = typer.Option([], "--run", help="Run name per source (default: the file name)."),
     rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate, Hz, when there is no time column."),
     map_: list[str] = typer.Option(
-        [], "--map", help="Rename a column: SRC=DST or SRC=DST[unit]; SRC may be a 0-based column index or, "
+        [], "--map", help="Rename a column: SRC=DST or SRC=DST\\[unit]; SRC may be a 0-based column index or, "
         "for dSPACE exports, Y(1) or a signal name. Repeatable.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),

@@ -541,7 +541,7 @@ def import_files(
     if not sources:
         raise DataError("no files to import")
     if run_names is not None and len(run_names) != len(sources):
-        raise DataError(f"got {len(run_names)} run names for {len(sources)} files; give one per file", where="--name")
+        raise DataError(f"got {len(run_names)} run names for {len(sources)} files; give one per file", where="--run")
     out = Path(output)
     runs = [
         load_source(src, label=None if run_names is None else run_names[i], rate_hz=rate_hz, mapping=mapping)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import socket
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
@@ -26,7 +27,7 @@ import numpy as np
 
 from hilbench import __version__
 from hilbench.errors import DataError
-from hilbench.h5recover import clear_stale_write_flags
+from hilbench.h5recover import clear_stale_write_flags, write_flags
 
 FORMAT = "hilbench-recording"
 FORMAT_VERSION = 1
@@ -45,6 +46,18 @@ CANONICAL_CHANNELS: dict[str, tuple[str, str]] = {
 }
 
 _CHUNK = 8192  # samples per HDF5 chunk: 64 KiB of float64, a good size for appends and reads
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def utc_now() -> str:
@@ -137,6 +150,7 @@ class RunWriter:
             group.attrs["ended"] = utc_now()
             group.attrs["reason"] = reason
             group.attrs["n_samples"] = self.n_samples
+            f.attrs["writer"] = ""
             f.flush()
             group.attrs["status"] = status
             f.flush()
@@ -149,9 +163,7 @@ class RecordingWriter:
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
         if self.path.exists():
-            # A writer killed in SWMR mode leaves its write flags set; clear them when no live
-            # process holds the file, so the recording can be appended to again.
-            clear_stale_write_flags(self.path)
+            self._recover_if_stale()
             check_recording(self.path)
         else:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -161,6 +173,26 @@ class RecordingWriter:
                 f.attrs["created"] = utc_now()
                 f.attrs["hilbench_version"] = __version__
                 f.create_group("runs")
+
+    def _recover_if_stale(self) -> None:
+        """A writer killed in SWMR mode leaves its write flags set; clear them if it is dead.
+
+        A SWMR writer releases HDF5's file lock, so the writer's pid and host (root attr
+        ``writer``, set while a run streams) tell whether it still lives.
+        """
+        if write_flags(self.path) in (0, -1):
+            return
+        try:
+            with h5py.File(self.path, "r", swmr=True) as f:
+                writer = json.loads(_text(f.attrs.get("writer", "")) or "{}")
+        except (OSError, ValueError):
+            writer = {}
+        if writer.get("host") == socket.gethostname() and _pid_alive(int(writer.get("pid", -1))):
+            raise DataError(
+                f"the recording is being written by process {writer['pid']}; wait for it or give another file",
+                where=str(self.path),
+            )
+        clear_stale_write_flags(self.path)
 
     def next_index(self) -> int:
         with h5py.File(self.path, "r") as f:
@@ -183,6 +215,7 @@ class RecordingWriter:
         """Create the run group with ``status = "running"`` and its empty channels."""
         group_name = run_group_name(self.next_index(), label)
         with h5py.File(self.path, "a", libver="latest") as f:
+            f.attrs["writer"] = json.dumps({"pid": os.getpid(), "host": socket.gethostname()})
             group = f["runs"].create_group(group_name)
             group.attrs["experiment"] = experiment
             group.attrs["excitation"] = excitation if isinstance(excitation, str) else json.dumps(excitation)
