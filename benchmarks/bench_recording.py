@@ -23,6 +23,7 @@ progress on stderr. Never fails on timing or memory.
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import os
 import resource
@@ -210,16 +211,29 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
             C.note(f"[recording] long run: {done / total:6.1%} ({done:.3g}/{total:.3g}), RSS {_status_kb('VmRSS') / 1024:.0f} MiB")
 
     flush_marks: list[float] = []
+    run_started: list[float] = []
 
-    def on_flush(_group: str, _n_flushed: int) -> None:
-        flush_marks.append(time.perf_counter())
+    # The runner's flush hook has changed shape while the project evolves: use what is there.
+    params = inspect.signature(run_plan).parameters
+    hooks: dict[str, Any] = {}
+    if "on_event" in params:
+
+        def on_event(event: dict[str, Any]) -> None:
+            if event.get("event") == "flushed":
+                flush_marks.append(time.perf_counter())
+            elif event.get("event") == "run-started":
+                run_started.append(time.perf_counter())
+
+        hooks["on_event"] = on_event
+    elif "on_flush" in params:
+        hooks["on_flush"] = lambda _group, _n: flush_marks.append(time.perf_counter())
 
     t0 = time.perf_counter()
-    result = run_plan(rig, runs, out_path, progress=progress, on_flush=on_flush)
+    result = run_plan(rig, runs, out_path, progress=progress, **hooks)
     elapsed = time.perf_counter() - t0
-    # Flush gaps from the first recorded chunk on (before it, run_plan checks the whole plan and
-    # nothing has been written yet).
-    start = first_chunk[0] if first_chunk else t0
+    # Flush gaps from the start of the run on (before it, run_plan checks the whole plan and nothing
+    # has been written yet): the run-started event if there is one, else the first recorded chunk.
+    start = run_started[0] if run_started else (first_chunk[0] if first_chunk else t0)
     gaps = np.diff([start, *flush_marks])
     stop.set()
     thread.join()
@@ -232,9 +246,10 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
         "samples_recorded": result.runs[0].samples if result.runs else 0,
         "run_plan_s": elapsed,
         "setup_s": setup_s,
-        "seconds_to_first_chunk": start - t0,
-        "flushes_during_run": len(flush_marks),
-        "max_seconds_between_flushes": float(gaps.max()) if gaps.size else None,
+        "seconds_to_first_chunk": (first_chunk[0] if first_chunk else t0) - t0,
+        "flush_hook": next(iter(hooks), None),
+        "flushes_during_run": len(flush_marks) if hooks else None,
+        "max_seconds_between_flushes": float(gaps.max()) if hooks and gaps.size else None,
         "rss_after_imports_kb": rss_after_imports,
         "rss_after_setup_kb": rss_after_setup,
         "hwm_after_setup_kb": hwm_after_setup,

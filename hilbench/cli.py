@@ -126,7 +126,7 @@ def sweep(
     config: str = typer.Argument(..., help="Rig config: a TOML path or a built-in rig name (see `hilbench rigs`)."),
     plan: Optional[Path] = typer.Option(None, "--plan", "-p", help="Plan file (TOML with [[runs]] tables)."),
     excitation: list[str] = typer.Option(
-        [], "--excitation", "-e",
+        [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...",
         help="Run in compact form, e.g. 'sine:amplitude=3,frequency_hz=1,cycles=5'; '|' sweeps "
         "(amplitude=1|2|3), '/' makes lists. Repeatable.",
     ),
@@ -175,15 +175,15 @@ def sweep(
     rig = Rig(rig_config)
     log_file = open(log, "a", encoding="utf-8") if log is not None else None  # noqa: SIM115
 
-    def on_flush(group: str, n: int) -> None:
+    def on_event(event: dict[str, Any]) -> None:
         if log_file is not None:
-            log_file.write(json.dumps({"event": "flushed", "run": group, "samples": n, "t": time.time()}) + "\n")
+            log_file.write(json.dumps({**event, "t": time.time()}) + "\n")
             log_file.flush()
 
     started = time.monotonic()
     try:
         with _Progress(not quiet) as progress:
-            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_flush=on_flush)
+            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_event=on_event)
     finally:
         if log_file is not None:
             log_file.close()
@@ -237,10 +237,10 @@ def show(
 def import_(
     sources: list[Path] = typer.Argument(..., help="CSV or MATLAB .mat files, one run each."),
     output: Path = typer.Option(..., "--output", "-o", help="Recording (.h5); appended when it exists."),
-    run: list[str] = typer.Option([], "--run", help="Run name per source (default: the file name)."),
+    run: list[str] = typer.Option([], "--run", metavar="NAME", help="Run name per source (default: the file name)."),
     rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate, Hz, when there is no time column."),
     map_: list[str] = typer.Option(
-        [], "--map", help="Rename a column: SRC=DST or SRC=DST\\[unit]; SRC may be a 0-based column index or, "
+        [], "--map", metavar="SRC=DST", help="Rename a column: SRC=DST or SRC=DST[unit]; SRC may be a 0-based column index or, "
         "for dSPACE exports, Y(1) or a signal name. Repeatable.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
@@ -259,7 +259,7 @@ def import_(
 @user_errors
 def plot(
     file: Path = typer.Argument(..., help="Recording (.h5)."),
-    run: list[str] = typer.Option([], "--run", help="Run name, label or number (default: all). Repeatable."),
+    run: list[str] = typer.Option([], "--run", metavar="RUN", help="Run name, label or number (default: all). Repeatable."),
     output: Path = typer.Option(..., "--output", "-o", help="PNG to write."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:

@@ -147,7 +147,7 @@ def check_plan(runs: list[PlannedRun], actuator: ActuatorConfig, sample_rate_hz:
                 raise PlanLimitError(
                     f"{name} at t={(start + k) / sample_rate_hz:.6g} s: value {chunk[k]:.6g} {unit} changes at "
                     f"{rate:.6g} {unit}/s, above the slew limit max_rate = {actuator.max_rate:g} {unit}/s",
-                    hint="lower the frequency or amplitude, or correct [actuator] max_rate",
+                    hint="lower the frequency or amplitude, give steps a rise_s, or correct [actuator] max_rate",
                 )
             previous = float(chunk[-1])
             start += chunk.shape[0]

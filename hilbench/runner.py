@@ -90,9 +90,17 @@ def run_plan(
     realtime: bool | None = None,
     progress: Progress | None = None,
     chunk_samples: int | None = None,
-    on_flush: Callable[[str, int], None] | None = None,
+    on_event: Callable[[dict[str, Any]], None] | None = None,
 ) -> SweepResult:
-    """Check the plan, then play each run on the rig into ``output`` (appended when it exists)."""
+    """Check the plan, then play each run on the rig into ``output`` (appended when it exists).
+
+    ``on_event`` receives ``{"event": "run-started" | "flushed" | "run-ended", "run": group, ...}``;
+    a ``flushed`` event says how many samples of the run are on disk.
+    """
+    def emit(event: str, group: str, **fields: Any) -> None:
+        if on_event is not None:
+            on_event({"event": event, "run": group, **fields})
+
     check_plan(runs, rig.actuator, rig.fs)
     realtime = rig.config.realtime if realtime is None else realtime
     if chunk_samples is None:
@@ -112,6 +120,7 @@ def run_plan(
             )
             n_total = exc.n_samples(rig.fs)
             done = 0
+            emit("run-started", run.group_name, samples=n_total)
             try:
                 first = next(exc.chunks(rig.fs, 1))
                 rig.start_run(float(first[0]))
@@ -125,8 +134,8 @@ def run_plan(
                     flushed_before = run.n_flushed
                     run.append({"time": t, "input": applied, **measured})
                     done += chunk.shape[0]
-                    if on_flush is not None and run.n_flushed != flushed_before:
-                        on_flush(run.group_name, run.n_flushed)
+                    if run.n_flushed != flushed_before:
+                        emit("flushed", run.group_name, samples=run.n_flushed)
                     if progress is not None:
                         progress(index, planned.label, done, n_total)
                     if realtime:
@@ -137,9 +146,11 @@ def run_plan(
                     rig.stop(False)
                     reason = f"interrupted by {stop.signal_name} after {done} of {n_total} samples; actuator ramped to rest"
                     run.finish("aborted", reason)
+                    emit("run-ended", run.group_name, status="aborted", samples=done)
                     result.runs.append(RunResult(planned.label, run.group_name, "aborted", done, reason))
                     break
                 run.finish("complete")
+                emit("run-ended", run.group_name, status="complete", samples=done)
                 result.runs.append(RunResult(planned.label, run.group_name, "complete", done))
             except BaseException as error:
                 try:
@@ -147,6 +158,7 @@ def run_plan(
                 finally:
                     reason = "".join(traceback.format_exception(error))
                     run.finish("failed", reason)
+                    emit("run-ended", run.group_name, status="failed", samples=done)
                     result.runs.append(RunResult(planned.label, run.group_name, "failed", done, reason))
                 raise
         rig.stop(True)

@@ -240,6 +240,7 @@ class Step(Excitation):
     schema = {
         "levels": Key("numbers", required=True, doc="values held one after the other"),
         "hold_s": Key("number-or-numbers", required=True, minimum=0, exclusive_minimum=True),
+        "rise_s": Key("number", default=0.0, minimum=0, doc="linear transition time at each change, within the hold"),
     }
 
     @staticmethod
@@ -259,8 +260,19 @@ class Step(Excitation):
 
     def values(self, t: np.ndarray) -> np.ndarray:
         edges = np.cumsum(self._holds())
+        levels = np.asarray(self.params["levels"], dtype=float)
         index = np.clip(np.searchsorted(edges, t, side="right"), 0, len(edges) - 1)
-        return np.asarray(self.params["levels"], dtype=float)[index]
+        out = levels[index]
+        rise = self.params["rise_s"]
+        if rise > 0:
+            # Each change starts at the hold boundary and reaches the new level after rise_s.
+            starts = np.concatenate([[0.0], edges[:-1]])
+            since = t - starts[index]
+            previous = levels[np.maximum(index - 1, 0)]
+            ramping = (index > 0) & (since < rise)
+            frac = np.clip(since / rise, 0.0, 1.0)
+            out = np.where(ramping, previous + (out - previous) * frac, out)
+        return out
 
 
 class Multitone(Excitation):

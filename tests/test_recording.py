@@ -113,7 +113,7 @@ def test_sigkill_mid_sweep_leaves_flushed_samples(tmp_path):
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.monotonic() + 60
     while time.monotonic() < deadline:
-        if log.exists() and log.read_text().count("\n") >= 4:
+        if log.exists() and log.read_text().count('"flushed"') >= 4:
             break
         time.sleep(0.05)
     else:
@@ -122,7 +122,8 @@ def test_sigkill_mid_sweep_leaves_flushed_samples(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     events = [json.loads(line) for line in log.read_text().splitlines()]
-    last = events[-1]
+    assert events[0]["event"] == "run-started"
+    last = [e for e in events if e["event"] == "flushed"][-1]
     assert last["event"] == "flushed" and last["samples"] > 0
 
     # hilbench and h5py (SWMR read) open it as it is

@@ -88,6 +88,12 @@ def test_step_levels_and_holds():
     assert np.count_nonzero(x == 0.726) == pytest.approx(500, abs=1)
 
 
+def test_step_rise_time_limits_the_slope():
+    x = make_excitation({"kind": "step", "levels": [0.0, 1.0, -1.0], "hold_s": 0.5, "rise_s": 0.1}).generate(FS)
+    assert np.max(np.abs(np.diff(x))) * FS == pytest.approx(20.0, rel=1e-6)  # 2 units in 0.1 s
+    assert x[550] == pytest.approx(0.5) and x[620] == pytest.approx(1.0) and x[1200] == pytest.approx(-1.0) and x[1050] == pytest.approx(0.0)
+
+
 def test_chirp_sweeps_frequency():
     x = make_excitation(EXAMPLES["chirp"]).generate(FS)
     early = np.count_nonzero(np.diff(np.sign(x[:200])))
