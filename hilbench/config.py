@@ -223,10 +223,18 @@ class RigConfig:
         return next((s for s in self.sensors if s.channel == channel), None)
 
 
+def _configs_folder() -> Path:
+    """configs/ as installed (package data hilbench.configs), else next to the source tree."""
+    try:
+        return Path(str(resources.files("hilbench.configs")))
+    except ModuleNotFoundError:
+        # Running from a checkout whose hilbench/ shadows a non-editable install.
+        return Path(__file__).resolve().parents[1] / "configs"
+
+
 def builtin_rigs() -> dict[str, Path]:
     """Built-in rig configs by name (file stem)."""
-    folder = resources.files("hilbench.configs")
-    return {Path(p.name).stem: Path(str(p)) for p in folder.iterdir() if p.name.endswith(".toml")}
+    return {p.stem: p for p in sorted(_configs_folder().glob("*.toml"))}
 
 
 def resolve_rig_path(name_or_path: str) -> Path:

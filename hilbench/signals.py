@@ -142,7 +142,9 @@ class RampedSine(Excitation):
         first_peak = ((90.0 - p["phase_deg"]) / 360.0) % 1.0  # in cycles
         span = max(math.floor(n_cycles - first_peak - 1e-9), 1)  # cycles between first and last peak
         slope = (p["amplitude_end"] - p["amplitude_start"]) / span
-        amp = np.maximum(p["amplitude_start"] + slope * (t * p["frequency_hz"] - first_peak), 0.0)
+        # Clipped to [start, end] so no sample exceeds the largest requested amplitude.
+        lo, hi = sorted((p["amplitude_start"], p["amplitude_end"]))
+        amp = np.clip(p["amplitude_start"] + slope * (t * p["frequency_hz"] - first_peak), lo, hi)
         return p["offset"] + amp * np.sin(2 * np.pi * p["frequency_hz"] * t + np.radians(p["phase_deg"]))
 
 

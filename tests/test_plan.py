@@ -72,3 +72,28 @@ def test_valid_plan_totals():
     runs = plan_from_compact(["sine:amplitude=1|2,frequency_hz=1,cycles=2"])
     totals = check_plan(runs, ACT, 1000.0)
     assert totals == {"runs": 2, "samples": 4002, "duration_s": pytest.approx(4.002)}
+
+
+@pytest.mark.parametrize(
+    "plan, rig",
+    [
+        ("paper-002-linear-identification.toml", "gmm-gu2016"),
+        ("paper-002-validation.toml", "gmm-gu2016"),
+        ("paper-001-characterisation.toml", "gmm-issf-duhem"),
+        ("paper-000-rate-independent.toml", "gmm-fpmpi"),
+    ],
+)
+def test_shipped_experiment_plans_fit_their_rigs(plan, rig):
+    from pathlib import Path
+
+    from hilbench.config import load_rig
+
+    cfg = load_rig(rig)
+    runs = load_plan_file(Path(__file__).resolve().parents[1] / "experiments" / "plans" / plan)
+    assert check_plan(runs, cfg.actuator, cfg.sample_rate_hz)["samples"] > 0
+
+
+def test_ramped_sine_never_exceeds_its_end_amplitude():
+    runs = plan_from_compact(["ramped-sine:amplitude_start=0.15,amplitude_end=1.5,offset=1.5,phase_deg=-90,frequency_hz=0.05,cycles=10"])
+    x = runs[0].excitation.generate(1000.0)
+    assert x.max() <= 3.0 and x.max() == pytest.approx(3.0, abs=1e-6)
