@@ -31,7 +31,6 @@ from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
-from scipy import signal as sps
 
 from hilbench.errors import ConfigError
 from hilbench.schema import Key, check_table
@@ -208,6 +207,8 @@ class Noise(Excitation):
         return float(self.params["duration_s"])
 
     def _sos(self, sample_rate_hz: float) -> np.ndarray:
+        from scipy import signal as sps
+
         lo, hi = self.params["band_hz"]
         nyq = sample_rate_hz / 2
         if hi >= nyq:
@@ -221,10 +222,13 @@ class Noise(Excitation):
         return sps.butter(order, [lo, hi], btype="bandpass", fs=sample_rate_hz, output="sos")
 
     def chunks(self, sample_rate_hz: float, chunk: int = DEFAULT_CHUNK) -> Iterator[np.ndarray]:
+        from scipy import signal as sps
+
         sos = self._sos(sample_rate_hz)
         # Scale so the filtered unit white noise has the requested rms: var = sum(h^2).
-        lo = self.params["band_hz"][0]
-        n_impulse = int(min(2_000_000, max(4096, 40 * sample_rate_hz / max(lo, 1e-3))))
+        # The impulse response decays within some tens of periods of the lowest band edge.
+        lo, hi = self.params["band_hz"]
+        n_impulse = int(min(2_000_000, max(4096, 40 * sample_rate_hz / (lo if lo > 0 else hi))))
         impulse = np.zeros(n_impulse)
         impulse[0] = 1.0
         gain = self.params["rms"] / math.sqrt(float(np.sum(sps.sosfilt(sos, impulse) ** 2)))
@@ -331,6 +335,8 @@ class Chirp(Excitation):
         return float(self.params["duration_s"])
 
     def values(self, t: np.ndarray) -> np.ndarray:
+        from scipy import signal as sps
+
         p = self.params
         wave = sps.chirp(t, p["f_start_hz"], p["duration_s"], p["f_end_hz"], method=p["method"], phi=-90)
         return p["offset"] + p["amplitude"] * wave

@@ -6,8 +6,6 @@ import math
 from typing import Any
 
 import numpy as np
-from scipy import signal as sps
-
 from hilbench.errors import ConfigError
 
 
@@ -27,6 +25,8 @@ def discretize_dynamics(d: dict[str, Any], sample_rate_hz: float) -> tuple[np.nd
             num, den = list(d["num"]), list(d["den"])
             if len(num) > len(den):
                 raise ConfigError("[plant.dynamics] transfer-function must be proper (len(num) <= len(den))")
+        from scipy import signal as sps  # imported here: scipy.signal costs ~1.5 s and ~60 MB
+
         bd, ad, _ = sps.cont2discrete((num, den), 1.0 / sample_rate_hz, method="zoh")
         b = np.asarray(bd, float).ravel()
         a = np.asarray(ad, float).ravel()

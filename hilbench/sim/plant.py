@@ -200,11 +200,13 @@ class Plant:
         """Block mode: simulate len(command) samples from the current state."""
         u = np.ascontiguousarray(command, dtype=np.float64)
         n = u.shape[0]
-        t = (self.samples + np.arange(n)) / self.sample_rate_hz
-        temperature = (
-            trajectories.evaluate(self.tables["temperature"]["trajectory"], t) if "temperature" in self.tables else _EMPTY
-        )
-        load = trajectories.evaluate(self.tables["load"]["trajectory"], t) if "load" in self.tables else _EMPTY
+        temperature = load = _EMPTY
+        if "temperature" in self.tables or "load" in self.tables:  # the run clock only when needed
+            t = (self.samples + np.arange(n)) / self.sample_rate_hz
+            if "temperature" in self.tables:
+                temperature = trajectories.evaluate(self.tables["temperature"]["trajectory"], t)
+            if "load" in self.tables:
+                load = trajectories.evaluate(self.tables["load"]["trajectory"], t)
         noise = self._rng_output.standard_normal(n) if self.S[K.S_NOISE_STD] > 0 else np.zeros(n)
         measured = np.empty(n)
         true = np.empty(n)
