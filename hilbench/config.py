@@ -20,6 +20,7 @@ from typing import Any
 
 from hilbench.errors import ConfigError
 from hilbench.schema import Key, check_table
+from hilbench.sim import trajectories
 from hilbench.sim.dynamics import discretize_dynamics
 
 if sys.version_info >= (3, 11):
@@ -279,6 +280,10 @@ def _check_plant(plant: dict[str, Any], file: str, sample_rate_hz: float) -> dic
             values["trajectory"] = check_table(
                 values["trajectory"], TRAJECTORY_SCHEMA, file=file, table=f"plant.{name}.trajectory"
             )
+            try:
+                trajectories.validate(values["trajectory"])
+            except ConfigError as exc:
+                raise ConfigError(f"[plant.{name}.trajectory] {exc.message}", where=file) from None
         out[name] = values
     if "hysteresis" not in out:
         raise ConfigError("[plant] needs a [plant.hysteresis] table (model = 'linear' for none)", where=file)

@@ -19,6 +19,14 @@ def real_data_dir() -> Path | None:
     return next((c for c in candidates if c.is_dir()), None)
 
 
+def require_real_data() -> Path:
+    """The real-data folder, or skip the test when it is absent."""
+    folder = real_data_dir()
+    if folder is None:
+        pytest.skip("real data folder ../shared/data/real not found (set HILBENCH_REAL_DATA)")
+    return folder
+
+
 MINIMAL_RIG = """
 [rig]
 name = "mini"

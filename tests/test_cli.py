@@ -10,7 +10,7 @@ import pytest
 from typer.testing import CliRunner
 
 from hilbench.cli import app
-from tests.conftest import MINIMAL_RIG, real_data_dir
+from tests.conftest import MINIMAL_RIG, require_real_data
 
 runner = CliRunner()
 
@@ -132,15 +132,8 @@ def test_debug_shows_traceback(write_rig):
 # -- import and plot the measured data (skipped without ../shared/data/real) ----------------------
 
 
-@pytest.fixture
-def real() -> Path:
-    folder = real_data_dir()
-    if folder is None:
-        pytest.skip("../shared/data/real is absent")
-    return folder
-
-
-def test_import_and_plot_real_data(real, tmp_path):
+def test_import_and_plot_real_data(tmp_path):
+    real = require_real_data()
     out = tmp_path / "real.h5"
     csv = real / "piezo-stack-150V-1Hz" / "hysteresis_v_150_1hz.csv"
     doc = run_ok("import", str(csv), "-o", str(out), "--run", "stack-150V",

@@ -119,3 +119,11 @@ def test_extends_overrides_tables(tmp_path, write_rig):
     assert cfg.name == "child" and cfg.actuator.max == 5.0 and cfg.actuator.min == -10.0
     assert cfg.sample_rate_hz == 1000.0
     assert "extends base.toml" in cfg.text
+
+
+def test_trajectory_missing_parameter(write_rig):
+    line = _error(write_rig(
+        '[plant.temperature]\ntrajectory = { kind = "cooling", initial = 40.0 }\n'
+        '[[sensors]]\nchannel = "temperature"\nunit = "degC"\ndriver = "sim"\n'
+    ))
+    assert "[plant.temperature.trajectory]" in line and "'ambient'" in line and "'time_constant_s'" in line

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 
 import h5py
@@ -14,17 +13,10 @@ import scipy.io
 
 from hilbench.errors import DataError, UserError
 from hilbench.importers import import_files, load_source, parse_mapping
+from tests.conftest import require_real_data
 from hilbench.recording import Recording
 
 
-def _real_data() -> Path:
-    here = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
-    if here.is_dir():
-        return here
-    env = os.environ.get("HILBENCH_REAL_DATA")
-    if env and Path(env).is_dir():
-        return Path(env)
-    pytest.skip("real data folder ../shared/data/real not found (set HILBENCH_REAL_DATA)")
 
 
 def _write(path: Path, text: str) -> Path:
@@ -432,7 +424,7 @@ def test_dspace_refuses_time_not_increasing(tmp_path: Path) -> None:
 
 
 def test_real_piezo_stack_csv(tmp_path: Path) -> None:
-    src = _real_data() / "piezo-stack-150V-1Hz" / "hysteresis_v_150_1hz.csv"
+    src = require_real_data() / "piezo-stack-150V-1Hz" / "hysteresis_v_150_1hz.csv"
     out = tmp_path / "real.h5"
     names = import_files([src], out, mapping=parse_mapping(["1=time[s]", "2=output[um]", "3=input[V]"]))
     run = Recording(out).run(names[0])
@@ -446,7 +438,7 @@ def test_real_piezo_stack_csv(tmp_path: Path) -> None:
 
 
 def test_real_dspace_mat(tmp_path: Path) -> None:
-    src = _real_data() / "piezo-dspace-preisach" / "20_hz_no_lp.mat"
+    src = require_real_data() / "piezo-dspace-preisach" / "20_hz_no_lp.mat"
     out = tmp_path / "real.h5"
     names = import_files([src], out, mapping=parse_mapping(["Y(3)=input[V]", "Måling=output[um]"]))
     run = Recording(out).run(names[0])

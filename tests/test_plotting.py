@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import matplotlib
@@ -15,19 +14,12 @@ import pytest  # noqa: E402
 from hilbench.errors import DataError  # noqa: E402
 from hilbench.importers import import_files, parse_mapping  # noqa: E402
 from hilbench.plotting import make_figure, plot_runs  # noqa: E402
+from tests.conftest import require_real_data
 from hilbench.recording import RecordingWriter  # noqa: E402
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
-def _real_data() -> Path:
-    here = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
-    if here.is_dir():
-        return here
-    env = os.environ.get("HILBENCH_REAL_DATA")
-    if env and Path(env).is_dir():
-        return Path(env)
-    pytest.skip("real data folder ../shared/data/real not found (set HILBENCH_REAL_DATA)")
 
 
 def _recording(path: Path, n_runs: int = 1, n: int = 1000, aux: bool = False, label: str = "loop") -> Path:
@@ -136,7 +128,7 @@ def test_missing_recording_is_refused(tmp_path: Path) -> None:
 
 
 def test_real_data_plots(tmp_path: Path) -> None:
-    real = _real_data()
+    real = require_real_data()
     rec = tmp_path / "real.h5"
     import_files([real / "piezo-stack-150V-1Hz" / "hysteresis_v_150_1hz.csv"], rec,
                  mapping=parse_mapping(["1=time[s]", "2=output[um]", "3=input[V]"]))
