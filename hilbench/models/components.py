@@ -1,0 +1,675 @@
+"""Model components: bases and effects, each a block of regressor columns with shape parameters.
+
+Every model of hilbench is linear in its weights once a few shape parameters (thresholds' eta,
+exponents, Duhem alpha, dynamics poles, creep time constants, ...) are fixed:
+
+    y = G_dyn( Phi(u(t - delay), aux; theta) @ w )
+
+``Phi`` stacks the columns of the base (operators, linear and constant terms) and of the effects
+(polynomial, saturating, creep, velocity-damping and auxiliary-channel columns, and modulated copies
+of the hysteresis columns); ``G_dyn`` is the optional linear dynamics with unit static gain. This is
+what makes identification exact and fast (separable least squares, :mod:`hilbench.identify`).
+
+Inputs are normalised, ``v = u / u_scale`` with ``u_scale = max |u|`` of the training data, so
+thresholds are in units of the input range and weights in output units (um).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+
+from hilbench.models import kernels as MK
+
+
+@dataclass
+class ShapeParam:
+    """A nonlinear parameter, found by bounded search (weights are found by least squares)."""
+
+    name: str
+    value: float
+    lower: float
+    upper: float
+    unit: str = ""
+    log: bool = False  # search on a log scale
+    doc: str = ""
+
+
+@dataclass
+class Columns:
+    """A block of regressor columns with names and weight bounds."""
+
+    matrix: np.ndarray  # (n, p)
+    names: list[str]
+    lower: np.ndarray  # (p,)
+    upper: np.ndarray  # (p,)
+    hysteresis: bool = False  # part of the rate-independent hysteresis (modulated by rate/aux effects)
+
+    @staticmethod
+    def of(matrix: np.ndarray, names: list[str], lower: float | list[float] = -np.inf,
+           upper: float | list[float] = np.inf, hysteresis: bool = False) -> Columns:
+        p = matrix.shape[1]
+        lo = np.broadcast_to(np.asarray(lower, float), (p,)).copy()
+        hi = np.broadcast_to(np.asarray(upper, float), (p,)).copy()
+        return Columns(np.ascontiguousarray(matrix), list(names), lo, hi, hysteresis)
+
+
+@dataclass
+class Signals:
+    """What components compute their columns from (one run, or one block of a run)."""
+
+    u: np.ndarray  # input after the delay, command unit
+    v: np.ndarray  # normalised input u / u_scale
+    vdot: np.ndarray  # d v / dt, 1/s
+    aux: dict[str, np.ndarray]
+    fs: float
+    norm: dict[str, Any]
+
+
+class Component:
+    """Base class: a named part of a model spec with options, constants and shape parameters."""
+
+    name: ClassVar[str] = ""
+    role: ClassVar[str] = "effect"  # "base" or "effect"
+    summary: ClassVar[str] = ""
+    options_schema: ClassVar[dict[str, type]] = {}
+
+    def __init__(self, options: dict[str, Any] | None = None):
+        self.options = dict(options or {})
+        self.constants: dict[str, Any] = {}
+        self.params: list[ShapeParam] = []
+
+    # -- set-up --------------------------------------------------------------------------------
+    def prepare(self, signals: Signals) -> None:
+        """Set data-dependent constants and shape-parameter starts from training signals."""
+
+    def shape(self) -> list[ShapeParam]:
+        return self.params
+
+    def set_shape(self, values: np.ndarray) -> None:
+        for p, v in zip(self.params, values):
+            p.value = float(v)
+
+    def param(self, name: str) -> float:
+        return next(p.value for p in self.params if p.name == name)
+
+    def finalize(self, s: Signals) -> None:
+        """Freeze data-dependent constants once the shape parameters are found."""
+
+    # -- columns -------------------------------------------------------------------------------
+    def new_state(self) -> dict[str, Any]:
+        return {}
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns | None:
+        raise NotImplementedError
+
+    # -- persistence ----------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "options": self.options,
+            "constants": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in self.constants.items()},
+            "shape": [{"name": p.name, "value": p.value, "lower": p.lower, "upper": p.upper, "unit": p.unit,
+                       "log": p.log} for p in self.params],
+        }
+
+    def load_dict(self, data: dict[str, Any]) -> None:
+        self.constants = dict(data.get("constants", {}))
+        self.params = [ShapeParam(p["name"], float(p["value"]), float(p["lower"]), float(p["upper"]),
+                                  p.get("unit", ""), bool(p.get("log", False))) for p in data.get("shape", [])]
+
+
+# ============================================================================================
+# bases
+# ============================================================================================
+
+
+def _thresholds(n: int, span: float) -> np.ndarray:
+    return np.arange(n, dtype=float) / n * span
+
+
+class OperatorBase(Component):
+    """Shared machinery of the operator bases: M-play columns over thresholds with eta."""
+
+    role = "base"
+    options_schema = {"n": int}
+    default_n = 10
+    eta_fixed: ClassVar[float | None] = 1.0  # play; None: eta searched per operator (PMPI)
+    one_sided = False
+    nonneg = True
+    span_kind: ClassVar[str] = "half-range"  # thresholds up to: half-range | full-range | max
+
+    def prepare(self, s: Signals) -> None:
+        n = int(self.options.get("n", self.default_n))
+        if "thresholds" not in self.constants:
+            v = s.v
+            # Play: a threshold beyond half the input range never switches; one-sided play: up to
+            # the maximum (000 eq. 3); M-play: the whole range (004 Table 4: r = 0..9 V for 0..10 V).
+            span = {"half-range": 0.5 * float(np.ptp(v)), "full-range": float(np.ptp(v)),
+                    "max": float(np.max(v))}["max" if self.one_sided else self.span_kind]
+            self.constants["thresholds"] = _thresholds(n, max(span, 1e-12)).tolist()
+        if self.eta_fixed is None and not self.params:
+            self.params = [ShapeParam(f"eta_{i}", 0.5, -0.99, 1.5, doc="M-play delay coefficient (004 eq. 6)")
+                           for i in range(len(self.constants["thresholds"]))]
+
+    def eta(self) -> np.ndarray:
+        r = np.asarray(self.constants["thresholds"], float)
+        if self.eta_fixed is None:
+            return np.array([p.value for p in self.params])
+        return np.full(r.shape, 0.0 if self.one_sided else self.eta_fixed)
+
+    def new_state(self) -> dict[str, Any]:
+        return {"ops": np.zeros(len(self.constants["thresholds"]))}
+
+    def operator_columns(self, x: np.ndarray, state: dict[str, Any]) -> np.ndarray:
+        r = np.asarray(self.constants["thresholds"], float)
+        out = np.empty((x.shape[0], r.shape[0]))
+        MK.mplay_block(np.ascontiguousarray(x, dtype=np.float64), r, self.eta(), state["ops"], out)
+        return out
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        ops = self.operator_columns(s.v, state)
+        r = self.constants["thresholds"]
+        n = s.v.shape[0]
+        matrix = np.column_stack([s.v, np.ones(n), ops, *self.extra(s)])
+        names = ["p0*v", "offset"] + [f"w[r={ri:.4g}]" for ri in r] + self.extra_names()
+        lower = [-np.inf, -np.inf] + [0.0 if self.nonneg else -np.inf] * len(r) + [-np.inf] * len(self.extra_names())
+        return Columns.of(matrix, names, lower, hysteresis=True)
+
+    def extra(self, s: Signals) -> list[np.ndarray]:
+        return []
+
+    def extra_names(self) -> list[str]:
+        return []
+
+
+class PI(OperatorBase):
+    name = "pi"
+    summary = "Prandtl-Ishlinskii: linear term + weighted play operators (weights >= 0)"
+
+
+class PI1(OperatorBase):
+    name = "pi1"
+    summary = "PI with one-sided play operators (000 eq. 1, 003 eq. 2), for unipolar drives"
+    one_sided = True
+
+
+class MPI(OperatorBase):
+    name = "mpi"
+    summary = "modified PI of 002: play operators + cubic polynomial g(i) (eq. 12-14)"
+
+    def extra(self, s: Signals) -> list[np.ndarray]:
+        return [s.v**2, s.v**3]
+
+    def extra_names(self) -> list[str]:
+        return ["a2*v^2", "a1*v^3"]
+
+
+class PMPI(OperatorBase):
+    name = "pmpi"
+    summary = "polynomial-modified PI of 004: M-play operators with eta (eq. 5-7) + cubic polynomial"
+    eta_fixed = None
+    span_kind = "full-range"
+
+    def extra(self, s: Signals) -> list[np.ndarray]:
+        return [s.v**2, s.v**3]
+
+    def extra_names(self) -> list[str]:
+        return ["a2*v^2", "a1*v^3"]
+
+
+class PD(OperatorBase):
+    name = "pd"
+    summary = "PI with one-sided dead-zone operators (memoryless asymmetric shaping, additive form)"
+    options_schema = {"n": int, "n_dead_zone": int}
+
+    def prepare(self, s: Signals) -> None:
+        super().prepare(s)
+        if "dead_zones" not in self.constants:
+            m = int(self.options.get("n_dead_zone", 4))
+            lo, hi = float(np.min(s.v)), float(np.max(s.v))
+            self.constants["dead_zones"] = np.linspace(lo, hi, m + 2)[1:-1].tolist()
+
+    def extra(self, s: Signals) -> list[np.ndarray]:
+        cols = []
+        for d in self.constants["dead_zones"]:
+            cols.append(np.maximum(s.v - d, 0.0) if d >= 0 else np.minimum(s.v - d, 0.0))
+        return cols
+
+    def extra_names(self) -> list[str]:
+        return [f"g[d={d:.3g}]" for d in self.constants["dead_zones"]]
+
+
+class FPMPI(Component):
+    """000 eq. 1-5: one-sided play operators on a fractional polynomial of the input."""
+
+    name = "fpmpi"
+    role = "base"
+    summary = "fractional-polynomial-modified PI of 000: one-sided play of sum w_P,i u^e_i (eq. 1-5)"
+    options_schema = {"n": int, "terms": int}
+    exponents_all = (0.0, 1.0, 2.0, 0.5, 3.0, 1.0 / 3.0, 4.0, 0.25)
+
+    def prepare(self, s: Signals) -> None:
+        if "exponents" not in self.constants:
+            terms = int(self.options.get("terms", 8))
+            self.constants["exponents"] = list(self.exponents_all[:terms])
+            self.constants["n"] = int(self.options.get("n", 10))
+        if not self.params:
+            # The linear term's weight is fixed at 1: the operator input's scale is not identifiable.
+            self.params = [ShapeParam(f"wP_{i}", 0.0, -3.0, 3.0, doc=f"weight of u^{e:.3g} (000 eq. 5)")
+                           for i, e in enumerate(self.constants["exponents"]) if e != 1.0]
+
+    def shaped(self, v: np.ndarray) -> np.ndarray:
+        vv = np.abs(v)
+        out = np.zeros_like(v)
+        params = iter(self.params)
+        for e in self.constants["exponents"]:
+            w = 1.0 if e == 1.0 else next(params).value
+            out += w * (np.sign(v) * vv**e if e != 0.0 else 1.0)
+        return out
+
+    def finalize(self, s: Signals) -> None:
+        self.constants["shaped_max"] = float(np.max(np.abs(self.shaped(s.v)))) or 1.0
+
+    def new_state(self) -> dict[str, Any]:
+        return {"ops": np.zeros(int(self.constants["n"]))}
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        x = self.shaped(s.v)
+        n_ops = int(self.constants["n"])
+        # thresholds follow eq. 3 on the shaped input's range seen in training
+        span = float(self.constants.get("shaped_max", 0.0)) or float(np.max(np.abs(x))) or 1.0
+        r = np.arange(n_ops) / n_ops * span
+        ops = np.empty((x.shape[0], n_ops))
+        MK.mplay_block(np.ascontiguousarray(x), r, np.zeros(n_ops), state["ops"], ops)
+        matrix = np.column_stack([np.ones(x.shape[0]), ops])
+        names = ["offset"] + [f"wH[r={ri:.4g}]" for ri in r]
+        return Columns.of(matrix, names, hysteresis=True)
+
+
+class Linear(Component):
+    name = "linear"
+    role = "base"
+    summary = "no memory: y = p0 v + offset"
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        return Columns.of(np.column_stack([s.v, np.ones_like(s.v)]), ["p0*v", "offset"], hysteresis=True)
+
+
+class DuhemBase(Component):
+    """001 eq. 17: w' = alpha |u'| (beta/alpha u - w); y = k1 u + k2 z(w) with a shape function.
+
+    w is linear in beta, so beta merges into the shape function's scale; what is searched is alpha
+    and the shape parameters, the rest are weights.
+    """
+
+    role = "base"
+    shape_kind: ClassVar[str] = ""
+
+    def prepare(self, s: Signals) -> None:
+        if self.params:
+            return
+        u_span = float(np.ptp(s.u)) or 1.0
+        self.params = [ShapeParam("alpha", 1.0 / u_span, 0.01 / u_span, 20.0 / u_span, "1/input unit", log=True,
+                                  doc="Duhem rate alpha (001 eq. 17), per command unit")]
+        self.params += self.shape_params(s)
+
+    def shape_params(self, s: Signals) -> list[ShapeParam]:
+        return []
+
+    def new_state(self) -> dict[str, Any]:
+        return {"duhem": np.zeros(2), "started": False}
+
+    def w_tilde(self, s: Signals, state: dict[str, Any]) -> np.ndarray:
+        """Duhem state with beta = alpha (w follows u one to one far from turning points)."""
+        alpha = self.param("alpha")
+        if not state["started"]:
+            state["duhem"][:] = [s.u[0], s.u[0]]  # start on the anhysteretic line
+            state["started"] = True
+        out = np.empty_like(s.u)
+        MK.duhem_w_block(np.ascontiguousarray(s.u, dtype=np.float64), alpha, alpha, state["duhem"], out)
+        return out
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        w = self.w_tilde(s, state)
+        shape_cols, names, lower = self.shape_columns(w)
+        matrix = np.column_stack([s.u, np.ones_like(s.u), *shape_cols])
+        return Columns.of(matrix, ["k1*u", "offset", *names], [-np.inf, -np.inf, *lower], hysteresis=True)
+
+    def shape_columns(self, w: np.ndarray) -> tuple[list[np.ndarray], list[str], list[float]]:
+        raise NotImplementedError
+
+
+class DuhemG(DuhemBase):
+    name = "duhem-g"
+    summary = "ISSF-Duhem with the Gompertz shape function (001 eq. 20-21)"
+
+    def shape_params(self, s: Signals) -> list[ShapeParam]:
+        span = float(np.max(np.abs(s.u))) or 1.0
+        return [ShapeParam("mu1", 0.5 / span, 0.001 / span, 10.0 / span, "1/input unit", log=True),
+                ShapeParam("mu2", 1.0, -3.0, 3.0)]
+
+    def shape_columns(self, w: np.ndarray) -> tuple[list[np.ndarray], list[str], list[float]]:
+        mu1, mu2 = self.param("mu1"), self.param("mu2")
+        z = 2.0 * np.exp(-np.exp(-mu1 * w - mu2)) - 2.0 * math.exp(-math.exp(-mu2))
+        return [z], ["k2*z"], [-np.inf]
+
+
+class DuhemM(DuhemG):
+    name = "duhem-m"
+    summary = "ISSF-Duhem with the modified tanh shape function (001 eq. 24-25)"
+
+    def shape_params(self, s: Signals) -> list[ShapeParam]:
+        params = super().shape_params(s)
+        params[0].name, params[1].name = "mu3", "mu4"
+        return params
+
+    def shape_columns(self, w: np.ndarray) -> tuple[list[np.ndarray], list[str], list[float]]:
+        mu3, mu4 = self.param("mu3"), self.param("mu4")
+        z = 2.0 * np.tanh(-np.exp(-mu3 * w - mu4)) - 2.0 * math.tanh(-math.exp(-mu4))
+        return [z], ["k2*z"], [-np.inf]
+
+
+class DuhemD(DuhemBase):
+    name = "duhem-d"
+    summary = "ISSF-Duhem with one-sided dead-zone shape operators (001 eq. 26-31), weights free"
+    options_schema = {"n": int}
+
+    def shape_params(self, s: Signals) -> list[ShapeParam]:
+        span = float(np.max(np.abs(s.u))) or 1.0
+        n = int(self.options.get("n", 6))
+        self.constants["n"] = n
+        return [ShapeParam("spacing_pos", span / (n + 1), span / (20 * n), 2 * span / n, "input unit", log=True,
+                           doc="mu5: threshold spacing for w >= 0 (eq. 28)"),
+                ShapeParam("spacing_neg", span / (n + 1), span / (20 * n), 2 * span / n, "input unit", log=True,
+                           doc="mu8: threshold spacing for w < 0 (eq. 30)")]
+
+    def thresholds(self) -> np.ndarray:
+        n = int(self.constants["n"])
+        pos = self.param("spacing_pos") * np.arange(1, n + 1)
+        neg = -self.param("spacing_neg") * np.arange(1, n + 1)
+        return np.concatenate([neg[::-1], pos])
+
+    def shape_columns(self, w: np.ndarray) -> tuple[list[np.ndarray], list[str], list[float]]:
+        cols, names = [], []
+        for r in self.thresholds():
+            cols.append(np.maximum(w - r, 0.0) if r > 0 else np.minimum(w - r, 0.0))
+            names.append(f"g[r={r:.4g}]")
+        # the r = 0 operator is w itself
+        return [w, *cols], ["g[r=0]", *names], [-np.inf] * (len(cols) + 1)
+
+
+class BoucWen(Component):
+    name = "bouc-wen"
+    role = "base"
+    summary = "Bouc-Wen: z' = A u' - beta |u'||z|^(n-1) z - gamma u'|z|^n; y = k u + z (n = 1 by default)"
+    options_schema = {"n": float}
+
+    def prepare(self, s: Signals) -> None:
+        if self.params:
+            return
+        span = float(np.ptp(s.u)) or 1.0
+        self.constants["n"] = float(self.options.get("n", 1.0))
+        # gamma = g beta with |g| <= 1 keeps z bounded (beta >= |gamma|, the usual stability condition)
+        self.params = [ShapeParam("beta", 1.0 / span, 1e-3 / span, 100.0 / span, "1/input unit", log=True),
+                       ShapeParam("gamma_over_beta", 0.0, -1.0, 1.0)]
+
+    def new_state(self) -> dict[str, Any]:
+        return {"bw": np.zeros(2), "started": False}
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        if not state["started"]:
+            state["bw"][1] = s.u[0]
+            state["started"] = True
+        z = np.empty_like(s.u)
+        beta = self.param("beta")
+        MK.bouc_wen_block(np.ascontiguousarray(s.u, dtype=np.float64), beta, beta * self.param("gamma_over_beta"),
+                          float(self.constants["n"]), state["bw"], z)
+        return Columns.of(np.column_stack([s.u, np.ones_like(s.u), z]), ["k*u", "offset", "A*z"], hysteresis=True)
+
+
+# ============================================================================================
+# effects
+# ============================================================================================
+
+
+class Asymmetry(Component):
+    name = "asymmetry"
+    summary = "memoryless polynomial v^2, v^3 (002 cubic, 004 PMPI): loops not centrally symmetric"
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        return Columns.of(np.column_stack([s.v**2, s.v**3]), ["asym*v^2", "asym*v^3"], hysteresis=True)
+
+
+class Saturation(Component):
+    name = "saturation"
+    summary = "loop flattening at large drive: tanh(v/s) and the fractional terms sgn(v)|v|^(1/2), ^(1/3)"
+
+    def prepare(self, s: Signals) -> None:
+        if not self.params:
+            self.params = [ShapeParam("s", 0.5, 0.05, 3.0, "normalised input", log=True, doc="tanh knee")]
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        v = s.v
+        sq = np.sign(v) * np.sqrt(np.abs(v))
+        cb = np.sign(v) * np.abs(v) ** (1.0 / 3.0)
+        return Columns.of(np.column_stack([np.tanh(v / self.param("s")), sq, cb]),
+                          ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"], hysteresis=True)
+
+
+class Creep(Component):
+    name = "creep"
+    summary = "slow drift after input changes: Kelvin-Voigt elements, low-passed input with time constants"
+    options_schema = {"n": int}
+
+    def prepare(self, s: Signals) -> None:
+        if self.params:
+            return
+        n = int(self.options.get("n", 2))
+        duration = s.u.shape[0] / s.fs
+        lo, hi = 10.0 / s.fs, max(duration, 20.0 / s.fs)
+        starts = np.geomspace(max(lo, duration / 100), max(hi / 3, lo * 2), n)
+        self.params = [ShapeParam(f"tau_{k}", float(t), lo, hi, "s", log=True, doc="creep time constant")
+                       for k, t in enumerate(starts)]
+
+    def new_state(self) -> dict[str, Any]:
+        return {"lp": np.zeros((len(self.params), 1)), "started": False}
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        if not state["started"]:
+            state["lp"][:, 0] = s.v[0]
+            state["started"] = True
+        cols = []
+        for k, p in enumerate(self.params):
+            out = np.empty_like(s.v)
+            MK.lowpass_block(np.ascontiguousarray(s.v), 1.0 - math.exp(-1.0 / (s.fs * p.value)), state["lp"][k], out)
+            cols.append(out - s.v)  # the drift part: zero in steady state
+        return Columns.of(np.column_stack(cols), [f"creep[tau={p.value:.3g}s]" for p in self.params])
+
+
+class RateDependence(Component):
+    """003: m-th power velocity damping, and gains that change with the drive frequency.
+
+    form = damping: adds c sgn(v') |v'/Q|^m (eq. 6) and rate-weighted copies of the hysteresis
+    columns (weights varying linearly with |v'|, 003 refs. 16-17).
+    form = frequency: k(f) and c(f) polynomials of the drive frequency f estimated from the input's
+    turning points (eq. 8-13): hysteresis columns times f^j, damping columns f^j sgn(v')|v'/Q(f)|^m.
+    form = auto: frequency when the training data hold several drive frequencies, else damping.
+    waveform = triangle applies the harmonic weights of eq. 14-16 to the frequency polynomials.
+    """
+
+    name = "rate-dependence"
+    summary = "loop width and gain change with input rate: velocity damping, frequency polynomials (003)"
+    options_schema = {"form": str, "order": int, "waveform": str, "harmonics": int}
+
+    def prepare(self, s: Signals) -> None:
+        if not self.params:
+            self.params = [ShapeParam("m", 1.0, 0.2, 3.0, doc="damping exponent (003 eq. 6)")]
+        if "form" not in self.constants:
+            form = str(self.options.get("form", "auto"))
+            if form == "auto":
+                f = np.empty_like(s.v)
+                a = np.empty_like(s.v)
+                MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(8), f, a)
+                levels = f[f > 0]
+                spread = np.percentile(levels, 95) / max(np.percentile(levels, 5), 1e-12) if levels.size else 1.0
+                form = "frequency" if spread > 1.5 else "damping"
+            self.constants["form"] = form
+            self.constants["order"] = int(self.options.get("order", 3))
+            rate = np.abs(s.vdot)
+            self.constants["rate_ref"] = float(np.sqrt(np.mean(rate**2))) or 1.0
+            f_est = np.empty_like(s.v)
+            a_est = np.empty_like(s.v)
+            MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(8), f_est, a_est)
+            self.constants["f_ref"] = float(np.max(f_est)) or 1.0
+            self.constants["waveform"] = str(self.options.get("waveform", "sine"))
+            self.constants["harmonics"] = int(self.options.get("harmonics", 9))
+
+    def new_state(self) -> dict[str, Any]:
+        return {"tp": np.zeros(8)}
+
+    def harmonic_moments(self) -> np.ndarray:
+        """sum_i lambda_i i^j for j = 0..order (003 eq. 16); ones for a sine."""
+        order = int(self.constants["order"])
+        if self.constants["waveform"] != "triangle":
+            return np.ones(order + 1)
+        i = np.arange(1, int(self.constants["harmonics"]) + 1, dtype=float)
+        amp = np.abs(8.0 / (np.pi**2 * i**2) * np.sin(np.pi * i / 2))
+        lam = amp / amp.sum()
+        return np.array([np.sum(lam * i**j) for j in range(order + 1)])
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        m = self.param("m")
+        sgn = np.sign(s.vdot)
+        hyst = [c for c in previous if c.hysteresis]
+        if self.constants["form"] == "damping":
+            q = float(self.constants["rate_ref"])
+            rate = np.abs(s.vdot) / q
+            cols = [sgn * rate**m]
+            names = ["c*sgn(v')|v'/Q|^m"]
+            for block in hyst:
+                for j, name in enumerate(block.names):
+                    if name != "offset":
+                        cols.append(block.matrix[:, j] * rate)
+                        names.append(f"{name}*|v'|/Q")
+            return Columns.of(np.column_stack(cols), names)
+        f = np.empty_like(s.v)
+        a = np.empty_like(s.v)
+        MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
+        fn = f / float(self.constants["f_ref"])
+        q = 2.0 * np.pi * f * a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            md = np.where(q > 0, sgn * np.abs(s.vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
+        moments = self.harmonic_moments()
+        cols, names = [], []
+        order = int(self.constants["order"])
+        for j in range(order):
+            cols.append(md * fn**j * moments[j])
+            names.append(f"c{j}*f^{j}*y_MD")
+        for j in range(1, order + 1):
+            for block in hyst:
+                for k, name in enumerate(block.names):
+                    cols.append(block.matrix[:, k] * fn**j * moments[j])
+                    names.append(f"{name}*f^{j}")
+        return Columns.of(np.column_stack(cols), names)
+
+
+class AuxChannel(Component):
+    """Dependence on a recorded auxiliary channel a (temperature, load, ...): an offset proportional
+    to a - a_ref (thermal strain, load compliance) and gain changes of the hysteresis columns."""
+
+    role = "effect"
+    summary = "dependence on a recorded channel: offset and gain proportional to its change"
+
+    def __init__(self, channel: str, options: dict[str, Any] | None = None):
+        super().__init__(options)
+        self.channel = channel
+
+    @property
+    def label(self) -> str:
+        return self.channel
+
+    def prepare(self, s: Signals) -> None:
+        if "reference" not in self.constants:
+            a = s.aux[self.channel]
+            self.constants["reference"] = float(np.nanmean(a))
+            self.constants["scale"] = float(np.nanstd(a)) or 1.0
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
+        cols, names = [da], [f"{self.channel}:offset"]
+        for block in previous:
+            if block.hysteresis:
+                for k, name in enumerate(block.names):
+                    if name != "offset":
+                        cols.append(block.matrix[:, k] * da)
+                        names.append(f"{name}*d{self.channel}")
+        return Columns.of(np.column_stack(cols), names)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**super().to_dict(), "name": self.channel, "channel": self.channel}
+
+
+class Dynamics(Component):
+    """Linear dynamics after the static part (002 eq. 7, 000 eq. 15), unit static gain.
+
+    kind second-order (default): K wn^2 / (s^2 + 2 zeta wn s + wn^2) with K = 1, zeta and the natural
+    frequency searched; kind first-order: one pole. Discretised by zero-order hold.
+    """
+
+    name = "dynamics"
+    summary = "linear dynamics after the hysteresis: second-order plant (002) or first-order lag"
+    options_schema = {"kind": str}
+
+    def prepare(self, s: Signals) -> None:
+        if self.params:
+            return
+        kind = str(self.options.get("kind", "second-order"))
+        self.constants["kind"] = kind
+        nyq = s.fs / 2
+        if kind == "first-order":
+            self.params = [ShapeParam("corner_hz", nyq / 10, nyq / 1e4, 0.9 * nyq, "Hz", log=True)]
+        else:
+            self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 0.9 * nyq, "Hz", log=True),
+                           ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
+
+    def coefficients(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
+        from hilbench.sim.dynamics import discretize_dynamics
+
+        if self.constants["kind"] == "first-order":
+            wc = 2 * math.pi * self.param("corner_hz")
+            table = {"kind": "transfer-function", "num": [wc], "den": [1.0, wc]}
+        else:
+            table = {"kind": "second-order", "gain": 1.0, "zeta": self.param("zeta"),
+                     "natural_frequency_hz": self.param("natural_frequency_hz")}
+        return discretize_dynamics(table, fs)
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
+        return None
+
+
+class Delay(Component):
+    name = "delay"
+    summary = "pure time delay of amplifier, sensor or DAQ (fractional samples)"
+    options_schema = {"max_s": float}
+
+    def prepare(self, s: Signals) -> None:
+        if not self.params:
+            max_s = float(self.options.get("max_s", 50.0 / s.fs))
+            self.params = [ShapeParam("seconds", 1.0 / s.fs, 0.0, max_s, "s")]
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
+        return None
+
+
+BASES: dict[str, type[Component]] = {
+    cls.name: cls for cls in (Linear, PI, PI1, MPI, PMPI, FPMPI, PD, DuhemG, DuhemM, DuhemD, BoucWen)
+}
+EFFECTS: dict[str, type[Component]] = {
+    cls.name: cls for cls in (Asymmetry, Saturation, RateDependence, Dynamics, Creep, Delay)
+}
+#: the order effects are applied in, whatever the order in the spec
+EFFECT_ORDER = ("delay", "asymmetry", "saturation", "creep", "rate-dependence", "<aux>", "dynamics")

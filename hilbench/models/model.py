@@ -1,0 +1,429 @@
+"""A model: spec, components, weights; simulation (block and step mode) and JSON persistence.
+
+A spec is a base model and effects joined by ``+`` (DESIGN.md): ``pi``, ``pmpi+dynamics``,
+``pi+creep+temperature``. Options go in parentheses: ``pi(n=16)``, ``rate-dependence(form=frequency)``.
+Any name that is neither a base nor an effect names an auxiliary channel of the recording.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy import signal as sps
+
+from hilbench import __version__
+from hilbench.errors import UserError
+from hilbench.models import kernels as MK
+from hilbench.models.components import (
+    BASES,
+    EFFECT_ORDER,
+    EFFECTS,
+    AuxChannel,
+    Columns,
+    Component,
+    ShapeParam,
+    Signals,
+)
+
+MODEL_FORMAT = "hilbench-model"
+MODEL_FORMAT_VERSION = 1
+
+
+class SpecError(UserError):
+    """A model spec that cannot be built: says what is available."""
+
+
+_PART = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_\-]*)\s*(?:\((.*)\))?\s*$")
+
+
+def _parse_value(text: str) -> Any:
+    text = text.strip()
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    return text
+
+
+def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
+    """``"pi(n=16)+creep"`` -> ``[("pi", {"n": 16}), ("creep", {})]``."""
+    parts: list[str] = []
+    depth, current = 0, ""
+    for ch in spec:
+        if ch == "(":
+            depth += 1
+        elif ch == ")":
+            depth -= 1
+        if ch == "+" and depth == 0:
+            parts.append(current)
+            current = ""
+        else:
+            current += ch
+    parts.append(current)
+    out = []
+    for part in parts:
+        match = _PART.match(part)
+        if not match:
+            raise SpecError(f"cannot read {part.strip()!r} in spec {spec!r}; expected NAME or NAME(key=value,...)")
+        options = {}
+        if match.group(2):
+            for item in filter(None, (x.strip() for x in match.group(2).split(","))):
+                key, eq, value = item.partition("=")
+                if not eq:
+                    raise SpecError(f"option {item!r} in {part.strip()!r}: expected key=value")
+                options[key.strip()] = _parse_value(value)
+        out.append((match.group(1).lower() if match.group(1).lower() in {**BASES, **EFFECTS} else match.group(1),
+                    options))
+    return out
+
+
+def available_names() -> str:
+    return (f"bases: {', '.join(BASES)}; effects: {', '.join(EFFECTS)}; "
+            "or the name of an auxiliary channel of the recording (e.g. temperature, load)")
+
+
+def build_components(spec: str, channels: list[str] | None = None) -> tuple[Component, list[Component]]:
+    """Base and effects of a spec, validated; aux-channel effects need the channel in ``channels``."""
+    parts = split_spec(spec)
+    base_name, base_options = parts[0]
+    if base_name not in BASES:
+        hint = " (an effect cannot come first)" if base_name in EFFECTS else ""
+        raise SpecError(f"unknown base model {base_name!r}{hint} in spec {spec!r}; {available_names()}")
+    base = BASES[base_name](base_options)
+    _check_options(base, base_options, spec)
+    effects: list[Component] = []
+    seen = {base_name}
+    for name, options in parts[1:]:
+        if name in seen:
+            raise SpecError(f"{name!r} appears twice in spec {spec!r}")
+        seen.add(name)
+        if name in BASES:
+            raise SpecError(f"{name!r} is a base model; a spec has one base, then effects: {available_names()}")
+        if name in EFFECTS:
+            effect = EFFECTS[name](options)
+            _check_options(effect, options, spec)
+        elif name == "hysteresis":
+            raise SpecError("'hysteresis' is added by choosing a hysteretic base (pi, pmpi, ...) instead of linear")
+        else:
+            if channels is not None and name not in channels:
+                aux = [c for c in channels if c not in ("time", "input", "output")]
+                raise SpecError(
+                    f"{name!r} is neither a model nor an effect, and the recording has no channel {name!r}; "
+                    f"{available_names()}; channels here: {', '.join(aux) or 'none'}"
+                )
+            effect = AuxChannel(name, options)
+        effects.append(effect)
+    effects.sort(key=lambda e: EFFECT_ORDER.index(e.name if e.name in EFFECTS else "<aux>"))
+    return base, effects
+
+
+def _check_options(component: Component, options: dict[str, Any], spec: str) -> None:
+    for key in options:
+        if key not in component.options_schema:
+            allowed = ", ".join(component.options_schema) or "none"
+            raise SpecError(f"{component.name}: unknown option {key!r} in spec {spec!r}; options: {allowed}")
+
+
+@dataclass
+class RunData:
+    """One run of data for fitting or simulation: input, output, auxiliary channels."""
+
+    input: np.ndarray
+    output: np.ndarray | None
+    aux: dict[str, np.ndarray]
+    sample_rate_hz: float
+    name: str = ""
+    source: dict[str, Any] = field(default_factory=dict)
+    #: the run continues from the previous one in a list (same actuator, recorded in sequence): the
+    #: model's memory is carried over, through a ramp from the previous run's last input to this
+    #: run's first, as the rig moves between runs
+    chain: bool = False
+
+    def __len__(self) -> int:
+        return int(self.input.shape[0])
+
+
+class Model:
+    """A hysteresis model with effects, identified by :func:`hilbench.identify.fit_model`."""
+
+    def __init__(self, spec: str, channels: list[str] | None = None):
+        self.base, self.effects = build_components(spec, channels)
+        self.spec = self.canonical_spec()
+        self.norm: dict[str, Any] = {}
+        self.sample_rate_hz: float = 0.0
+        self.weights: np.ndarray | None = None
+        self.weight_names: list[str] = []
+        self.info: dict[str, Any] = {}
+
+    # -- structure -----------------------------------------------------------------------------
+    @property
+    def components(self) -> list[Component]:
+        return [self.base, *self.effects]
+
+    def effect(self, name: str) -> Component | None:
+        return next((e for e in self.effects if e.name == name or getattr(e, "channel", None) == name), None)
+
+    @property
+    def aux_channels(self) -> list[str]:
+        return [e.channel for e in self.effects if isinstance(e, AuxChannel)]
+
+    def canonical_spec(self) -> str:
+        def part(c: Component) -> str:
+            label = getattr(c, "channel", c.name)
+            opts = ",".join(f"{k}={v}" for k, v in c.options.items())
+            return f"{label}({opts})" if opts else label
+
+        return "+".join(part(c) for c in self.components)
+
+    def shape_params(self) -> list[ShapeParam]:
+        return [p for c in self.components for p in c.shape()]
+
+    def set_shape(self, theta: np.ndarray) -> None:
+        k = 0
+        for c in self.components:
+            n = len(c.shape())
+            c.set_shape(theta[k : k + n])
+            k += n
+
+    # -- signals -----------------------------------------------------------------------------------
+    def _signals(self, run: RunData, u_delayed: np.ndarray) -> Signals:
+        scale = float(self.norm["u_scale"])
+        v = u_delayed / scale
+        vdot = np.gradient(v) * run.sample_rate_hz if v.shape[0] > 1 else np.zeros_like(v)
+        return Signals(u_delayed, v, vdot, run.aux, run.sample_rate_hz, self.norm)
+
+    def _delayed(self, run: RunData) -> np.ndarray:
+        delay = self.effect("delay")
+        u = np.ascontiguousarray(run.input, dtype=np.float64)
+        if delay is None:
+            return u
+        out = np.empty_like(u)
+        MK.fractional_delay(u, delay.param("seconds") * run.sample_rate_hz, float(u[0]), out)
+        return out
+
+    def prepare(self, runs: list[RunData]) -> None:
+        """Set normalisation and data-dependent constants from training runs (before fitting)."""
+        u = np.concatenate([r.input for r in runs])
+        self.sample_rate_hz = runs[0].sample_rate_hz
+        self.norm.setdefault("u_scale", float(np.max(np.abs(u))) or 1.0)
+        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
+                         self.sample_rate_hz)
+        signals = self._signals(joined, u)
+        for c in self.components:
+            c.prepare(signals)
+
+    def finalize(self, runs: list[RunData]) -> None:
+        """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds)."""
+        u = np.concatenate([r.input for r in runs])
+        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
+                         self.sample_rate_hz)
+        signals = self._signals(joined, u)
+        for c in self.components:
+            c.finalize(signals)
+
+    # -- regressors ----------------------------------------------------------------------------------
+    def new_states(self) -> list[dict[str, Any]]:
+        """Fresh memory of every component (virgin operators, empty filters)."""
+        return [c.new_state() for c in self.components]
+
+    def static_columns(self, run: RunData, states: list[dict[str, Any]] | None = None) -> list[Columns]:
+        """The static regressor blocks of one run (before dynamics); ``states`` carry memory in/out."""
+        states = self.new_states() if states is None else states
+        s = self._signals(run, self._delayed(run))
+        blocks: list[Columns] = []
+        for c, state in zip(self.components, states):
+            block = c.columns(s, state, blocks)
+            if block is not None:
+                blocks.append(block)
+        return blocks
+
+    def advance(self, states: list[dict[str, Any]], u_from: float, u_to: float, aux: dict[str, float]) -> None:
+        """Carry the memory across the rig's unrecorded ramp from one run's end to the next's start."""
+        if u_from == u_to:
+            return
+        n = 64
+        u = np.linspace(u_from, u_to, n)
+        ramp = RunData(u, None, {k: np.full(n, v) for k, v in aux.items()}, self.sample_rate_hz or 1.0)
+        self.static_columns(ramp, states)
+
+    def _sequence(self, runs: list[RunData]):
+        """Yield (run, static blocks) with memory chained between runs marked ``chain``."""
+        states = self.new_states()
+        previous: RunData | None = None
+        for run in runs:
+            if run.chain and previous is not None:
+                self.advance(states, float(previous.input[-1]), float(run.input[0]),
+                             {k: float(v[0]) for k, v in run.aux.items()})
+            else:
+                states = self.new_states()
+            yield run, self.static_columns(run, states)
+            previous = run
+
+    def design_runs(self, runs: list[RunData]) -> list[tuple[np.ndarray, list[str], np.ndarray, np.ndarray]]:
+        """Regressor matrices of runs (memory chained where marked), dynamics applied."""
+        return [self._apply_dynamics(run, blocks) for run, blocks in self._sequence(runs)]
+
+    def design(self, run: RunData) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+        """Regressor matrix of one run from fresh memory, dynamics applied, names and weight bounds."""
+        return self._apply_dynamics(run, self.static_columns(run))
+
+    def _apply_dynamics(self, run: RunData, blocks: list[Columns]) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+        matrix = np.hstack([b.matrix for b in blocks])
+        names = [n for b in blocks for n in b.names]
+        lower = np.concatenate([b.lower for b in blocks])
+        upper = np.concatenate([b.upper for b in blocks])
+        dyn = self.effect("dynamics")
+        if dyn is not None:
+            b, a = dyn.coefficients(run.sample_rate_hz)
+            zi = sps.lfilter_zi(b, a)
+            matrix = sps.lfilter(b, a, matrix, axis=0, zi=zi[:, None] * matrix[0][None, :])[0]
+        return np.ascontiguousarray(matrix), names, lower, upper
+
+    # -- simulation ----------------------------------------------------------------------------------
+    def simulate(self, run: RunData) -> np.ndarray:
+        """Free-run model output for a whole run from fresh memory (block mode), um."""
+        return self._output(run, self.static_columns(run))
+
+    def simulate_runs(self, runs: list[RunData]) -> list[np.ndarray]:
+        """Free-run outputs of runs, memory chained between runs marked ``chain``."""
+        return [self._output(run, blocks) for run, blocks in self._sequence(runs)]
+
+    def _output(self, run: RunData, blocks: list[Columns]) -> np.ndarray:
+        if self.weights is None:
+            raise UserError("the model has no weights yet: fit it first")
+        h = np.zeros(len(run))
+        k = 0
+        for b in blocks:
+            p = b.matrix.shape[1]
+            h += b.matrix @ self.weights[k : k + p]
+            k += p
+        dyn = self.effect("dynamics")
+        if dyn is not None:
+            bb, aa = dyn.coefficients(run.sample_rate_hz)
+            h = sps.lfilter(bb, aa, h, zi=sps.lfilter_zi(bb, aa) * h[0])[0]
+        return h
+
+    def stepper(self, sample_rate_hz: float) -> ModelStepper:
+        """Step mode: feed one sample at a time through the same component kernels."""
+        return ModelStepper(self, sample_rate_hz)
+
+    # -- persistence ------------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": MODEL_FORMAT,
+            "format_version": MODEL_FORMAT_VERSION,
+            "hilbench_version": __version__,
+            "spec": self.spec,
+            "sample_rate_hz": self.sample_rate_hz,
+            "normalisation": self.norm,
+            "components": [c.to_dict() for c in self.components],
+            "parameters": {
+                "shape": [{"component": getattr(c, "channel", c.name), "name": p.name, "value": p.value,
+                           "unit": p.unit} for c in self.components for p in c.shape()],
+                "weights": [{"name": n, "value": float(w), "unit": "um"}
+                            for n, w in zip(self.weight_names, self.weights if self.weights is not None else [])],
+            },
+            **self.info,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=2, default=_json_default) + "\n", encoding="utf-8")
+        return path
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any], *, where: str = "<model>") -> Model:
+        if data.get("format") != MODEL_FORMAT:
+            raise UserError(f"not a hilbench model (format={data.get('format')!r}, expected {MODEL_FORMAT!r})", where=where)
+        if data.get("format_version") != MODEL_FORMAT_VERSION:
+            raise UserError(f"model format_version {data.get('format_version')} is not supported", where=where)
+        model = cls(data["spec"])
+        model.sample_rate_hz = float(data.get("sample_rate_hz", 0.0))
+        model.norm = dict(data.get("normalisation", {}))
+        for component, saved in zip(model.components, data["components"]):
+            component.load_dict(saved)
+        weights = data["parameters"]["weights"]
+        model.weight_names = [w["name"] for w in weights]
+        model.weights = np.array([float(w["value"]) for w in weights])
+        model.info = {k: v for k, v in data.items() if k in ("fitted_on", "metrics", "fit", "train", "validation")}
+        return model
+
+    @classmethod
+    def load(cls, path: str | Path) -> Model:
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise UserError("file not found", where=str(path)) from None
+        except json.JSONDecodeError as exc:
+            raise UserError(f"not valid JSON: {exc}", where=str(path)) from None
+        return cls.from_dict(data, where=str(path))
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"cannot serialise {type(value).__name__}")
+
+
+class ModelStepper:
+    """Per-sample evaluation of a fitted model with persistent component state (step mode).
+
+    Rate terms use the backward difference of the input; everything else is the block-mode code
+    called on blocks of one sample, so a stepped run equals the block simulation of the same input
+    up to the derivative estimate.
+    """
+
+    def __init__(self, model: Model, sample_rate_hz: float):
+        if model.weights is None:
+            raise UserError("the model has no weights yet: fit it first")
+        self.model = model
+        self.fs = sample_rate_hz
+        self.states = [c.new_state() for c in model.components]
+        self.u_prev: float | None = None
+        self.history: list[float] = []
+        dyn = model.effect("dynamics")
+        self.filter = dyn.coefficients(sample_rate_hz) if dyn is not None else None
+        self.zi: np.ndarray | None = None
+
+    def step(self, u: float, aux: dict[str, float] | None = None) -> float:
+        m = self.model
+        delay = m.effect("delay")
+        if delay is not None:
+            self.history.append(u)
+            d = delay.param("seconds") * self.fs
+            di = int(np.floor(d))
+            frac = d - di
+            hist = self.history
+            a = hist[-1 - di] if len(hist) > di else hist[0]
+            b = hist[-2 - di] if len(hist) > di + 1 else hist[0]
+            u = (1 - frac) * a + frac * b
+            if len(hist) > di + 4:
+                del hist[: len(hist) - di - 4]
+        scale = float(m.norm["u_scale"])
+        v = np.array([u / scale])
+        vdot = np.array([0.0 if self.u_prev is None else (u - self.u_prev) / scale * self.fs])
+        self.u_prev = u
+        s = Signals(np.array([u]), v, vdot, {k: np.array([x]) for k, x in (aux or {}).items()}, self.fs, m.norm)
+        blocks: list[Columns] = []
+        for c, state in zip(m.components, self.states):
+            block = c.columns(s, state, blocks)
+            if block is not None:
+                blocks.append(block)
+        row = np.concatenate([b.matrix[0] for b in blocks])
+        h = float(row @ m.weights)
+        if self.filter is None:
+            return h
+        b, a = self.filter
+        if self.zi is None:
+            self.zi = sps.lfilter_zi(b, a) * h
+        y, self.zi = sps.lfilter(b, a, [h], zi=self.zi)
+        return float(y[0])
