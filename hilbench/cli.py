@@ -336,6 +336,116 @@ def demo(
     typer.echo(f"next: hilbench show {h5}   |   hilbench plot {h5} --run 9 -o loop.png")
 
 
+@app.command("fit")
+@user_errors
+def fit_(
+    data: list[Path] = typer.Argument(..., metavar="DATA", help="Recording(s) (.h5); all runs are read, in order."),
+    model: str = typer.Option(
+        ..., "--model", "-m", metavar="SPEC|FIT.json",
+        help="Model spec: a base and effects joined by '+', e.g. 'pi', 'pmpi+dynamics', 'pi+creep+temperature', "
+        "'pi(n=16)'; or a fitted model (.json) to evaluate on the data without refitting.",
+    ),
+    train: list[str] = typer.Option(
+        [], "--train", metavar="RUN", help="Run that trains entirely (name, label or number; FILE-STEM:RUN with "
+        "several files). Repeatable. Without --test, the other runs validate.",
+    ),
+    test: list[str] = typer.Option(
+        [], "--test", metavar="RUN", help="Run that validates entirely. Repeatable. Without --train, the other runs train.",
+    ),
+    train_fraction: float = typer.Option(
+        0.7, "--train-fraction", help="Without --train/--test: the first part of every run that trains (0-1]; the rest validates.",
+    ),
+    output: Optional[Path] = typer.Option(
+        None, "--output", "-o", metavar="FIT.json", help="Write the fitted model (spec, parameters with units, "
+        "the runs it was fitted on, metrics) as JSON.",
+    ),
+    plot_png: Optional[Path] = typer.Option(
+        None, "--plot", metavar="PNG", help="Plot measured vs model loops and the error over time, per run (up to 6).",
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress notes on stderr."),
+) -> None:
+    """Fit a model to recordings and report its error on training and validation data.
+
+    By default the first 70 % of every run trains and the last 30 % validates; --train/--test
+    give whole runs roles instead. Runs of one file are chained: the model's memory carries over
+    from one run to the next, as the actuator's did. Errors are free-run simulation errors, in the
+    output unit (um), mse in its square, the *_pct keys in percent.
+    """
+    from hilbench.fitting import fit_or_evaluate, is_model_file
+
+    if output is not None and is_model_file(model):
+        raise UserError("-o writes a fitted model, but --model names a saved one, which is evaluated, not refitted",
+                        where="-o", hint="use --json to keep the evaluation, or give a spec to refit")
+
+    def note(message: str) -> None:
+        if not quiet:
+            typer.echo(message, err=True)
+
+    result = fit_or_evaluate(data, model, train=train or None, test=test or None,
+                             train_fraction=train_fraction, progress=note)
+    for line in result.notes:
+        note(f"note: {line}")
+    if output is not None:
+        note(f"wrote {result.save(output)}")
+    if plot_png is not None:
+        from hilbench.fitplots import plot_fit
+
+        note(f"wrote {plot_fit(result, plot_png)}")
+    if as_json:
+        document = result.to_json()
+        document["files"] = [str(p) for p in data]
+        if output is not None:
+            document["output"] = str(output)
+        if plot_png is not None:
+            document["png"] = str(plot_png)
+        _print_json(document)
+        return
+    for line in _fit_report_lines(result):
+        typer.echo(line)
+
+
+def _fit_report_lines(result: Any) -> list[str]:
+    """Human summary of a :class:`hilbench.fitting.FitResult`: spec, parameters, metric table, time."""
+    from hilbench.metrics import METRIC_KEYS
+
+    model_dict = result.model.to_dict()
+    how = "fitted" if result.refitted else f"loaded from {result.loaded_from}, not refitted"
+    lines = [f"model: {result.spec} ({how})", f"split: {result.split}"]
+    shape = model_dict["parameters"]["shape"]
+    if shape:
+        lines.append("shape parameters:")
+        for p in shape:
+            unit = f" {p['unit']}" if p["unit"] else ""
+            lines.append(f"  {p['component']:>16s}  {p['name']:<22s} {p['value']:12.6g}{unit}")
+    else:
+        lines.append("shape parameters: none (weights only)")
+    weights = model_dict["parameters"]["weights"]
+    y_unit = result.output_unit
+    if len(weights) <= 16:
+        lines.append(f"weights [{y_unit}]: " + ", ".join(f"{w['name']}={w['value']:.4g}" for w in weights))
+    else:
+        lines.append(f"weights: {len(weights)} (see -o FIT.json or --json)")
+    units = {"rmse": y_unit, "mse": f"{y_unit}^2", "mae": y_unit, "mad": y_unit}
+    lines.append(f"{'metric':<18s}{'train':>14s}{'validation':>14s}")
+    for key in METRIC_KEYS:
+        label = f"{key} [{units.get(key, '%')}]"
+        cells = [result.metrics[role][key] for role in ("train", "validation")]
+        lines.append(f"{label:<18s}" + "".join(f"{c:>14.5g}" if c == c else f"{'-':>14s}" for c in cells))
+    lines.append(f"{'samples':<18s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in ("train", "validation")))
+    lines.append("runs:")
+    for r in result.runs:
+        rmse = "  ".join(f"{role} rmse {m['rmse']:.4g}" for role, m in r.metrics.items() if m)
+        lines.append(f"  {r.key:<36s} {r.role:<17s} {rmse}")
+    info = result.fit_info()
+    if result.refitted:
+        n_eval = info["evaluations"]
+        lines.append(f"fit: {info['seconds']:.2f} s, {n_eval} evaluation{'' if n_eval == 1 else 's'} of the weights")
+    elif info.get("seconds") is not None:
+        lines.append(f"fit: loaded; the original fit took {info['seconds']:.2f} s")
+    return lines
+
+
 def main() -> None:
     app()
 

@@ -15,6 +15,7 @@ import signal
 import threading
 import time
 import traceback
+import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -109,15 +110,21 @@ def run_plan(
     writer = RecordingWriter(output)
     result = SweepResult(str(output))
     channels = rig.channels()
+    sweep_id = uuid.uuid4().hex
+    previous_group = ""
     with deferred_interrupts() as stop:
         for index, planned in enumerate(runs, start=1):
             if stop:
                 break
             exc = planned.excitation
+            # Which run this one follows on the same actuator, and from which command the rig
+            # approached its first value: what a model needs to carry the actuator's memory over.
             run = writer.begin_run(
                 planned.label, channels, experiment=experiment, excitation=exc.describe(),
                 sample_rate_hz=rig.fs, rig_toml=rig.config.text, devices=rig.devices(),
+                extra_attrs={"sweep": sweep_id, "previous_run": previous_group, "approach_from": rig.last_applied},
             )
+            previous_group = run.group_name
             n_total = exc.n_samples(rig.fs)
             done = 0
             emit("run-started", run.group_name, samples=n_total)

@@ -83,12 +83,18 @@ class _Problem:
         self.model = model
         self.runs = runs
         self.masks = [m & np.isfinite(r.output) for r, m in zip(runs, masks)]
+        self.train_parts = _training_parts(model, runs, self.masks)
         self.y = np.concatenate([r.output[m] for r, m in zip(runs, self.masks)])
         if self.y.size == 0:
             raise UserError("the training set is empty: no samples with a finite output")
         self.params = model.shape_params()
         self.log = np.array([p.log and p.lower > 0 for p in self.params], dtype=bool)
         self.evaluations = 0
+        # The static columns do not depend on the dynamics' poles: cache them while only those move.
+        dyn = model.effect("dynamics")
+        self._dynamic_ids = {id(p) for p in dyn.shape()} if dyn is not None else set()
+        self._static_key: tuple[float, ...] | None = None
+        self._static_blocks: list[Any] = []
 
     # theta <-> search variables (log scale where declared)
     def to_x(self, theta: np.ndarray) -> np.ndarray:
@@ -107,14 +113,21 @@ class _Problem:
         return self.to_x(lo), self.to_x(hi)
 
     def design(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
+        key = tuple(p.value for p in self.params if id(p) not in self._dynamic_ids)
+        if key != self._static_key:
+            self._static_blocks = [blocks for _, blocks in self.model._sequence(self.runs)]
+            self._static_key = key
         rows, lower, upper, names = [], None, None, []
-        for (A, names, lower, upper), mask in zip(self.model.design_runs(self.runs), self.masks):
+        for run, blocks, mask in zip(self.runs, self._static_blocks, self.masks):
+            A, names, lower, upper = self.model._apply_dynamics(run, blocks)
             rows.append(A[mask])
         return np.vstack(rows), lower, upper, names
 
     def solve(self, theta: np.ndarray | None = None) -> tuple[WeightSolution, np.ndarray, list[str]]:
         if theta is not None:
             self.model.set_shape(theta)
+            # constants that follow the shape (FPMPI thresholds) are those of the final model
+            self.model.finalize(self.train_parts)
         self.evaluations += 1
         A, lower, upper, names = self.design()
         if not np.all(np.isfinite(A)):
@@ -126,6 +139,16 @@ class _Problem:
         if not math.isfinite(sol.sse):
             return np.full(self.y.shape, 1e6 * (float(np.std(self.y)) + 1.0))
         return A @ sol.weights - self.y
+
+
+def _training_parts(model: Model, runs: list[RunData], masks: list[np.ndarray]) -> list[RunData]:
+    """The training rows of each run (for normalisation and data-dependent constants)."""
+    parts = []
+    for r, m in zip(runs, masks):
+        if m.any():
+            aux = {c: r.aux[c][m] for c in r.aux}
+            parts.append(RunData(r.input[m], r.output[m], aux, r.sample_rate_hz))
+    return parts
 
 
 def _sobol_points(lo: np.ndarray, hi: np.ndarray, n: int, seed: int) -> np.ndarray:
@@ -148,7 +171,11 @@ def fit_model(
 ) -> FitReport:
     """Identify ``model`` on the training rows of ``runs``; sets its shape parameters and weights."""
     t0 = time.perf_counter()
-    model.prepare([RunData(r.input, r.output, r.aux, r.sample_rate_hz) for r in runs])
+    usable = [m & np.isfinite(r.output) for r, m in zip(runs, train_masks)]
+    if not any(m.any() for m in usable):
+        raise UserError("the training set is empty: no samples with a finite output")
+    # normalisation and data-dependent constants from the training rows only
+    model.prepare(_training_parts(model, runs, usable))
     problem = _Problem(model, runs, train_masks)
     params = problem.params
     history: list[dict[str, Any]] = []
@@ -181,8 +208,7 @@ def fit_model(
             if sse < best_sse:
                 best_sse, best_x = sse, result.x
         model.set_shape(problem.to_theta(best_x))
-    model.finalize([RunData(r.input[m], r.output[m], {c: r.aux[c][m] for c in model.aux_channels}, r.sample_rate_hz)
-                    for r, m in zip(runs, problem.masks) if m.any()])
+    model.finalize(problem.train_parts)
     solution, _, names = problem.solve()
     model.weights = solution.weights
     model.weight_names = names

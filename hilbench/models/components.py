@@ -152,13 +152,16 @@ class OperatorBase(Component):
                     "max": float(np.max(v))}["max" if self.one_sided else self.span_kind]
             self.constants["thresholds"] = _thresholds(n, max(span, 1e-12)).tolist()
         if self.eta_fixed is None and not self.params:
+            # eta of the r = 0 operator does nothing (it is the input itself): not a parameter
             self.params = [ShapeParam(f"eta_{i}", 0.5, -0.99, 1.5, doc="M-play delay coefficient (004 eq. 6)")
-                           for i in range(len(self.constants["thresholds"]))]
+                           for i, ri in enumerate(self.constants["thresholds"]) if ri > 0]
 
     def eta(self) -> np.ndarray:
         r = np.asarray(self.constants["thresholds"], float)
         if self.eta_fixed is None:
-            return np.array([p.value for p in self.params])
+            eta = np.ones(r.shape)
+            eta[r > 0] = [p.value for p in self.params]
+            return eta
         return np.full(r.shape, 0.0 if self.one_sided else self.eta_fixed)
 
     def new_state(self) -> dict[str, Any]:
@@ -171,12 +174,15 @@ class OperatorBase(Component):
         return out
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        # The operator with threshold 0 is the input itself: its weight is the linear term p0,
+        # free in sign; the others are play operators with weights >= 0 (the inverse needs it).
         ops = self.operator_columns(s.v, state)
         r = self.constants["thresholds"]
         n = s.v.shape[0]
-        matrix = np.column_stack([s.v, np.ones(n), ops, *self.extra(s)])
-        names = ["p0*v", "offset"] + [f"w[r={ri:.4g}]" for ri in r] + self.extra_names()
-        lower = [-np.inf, -np.inf] + [0.0 if self.nonneg else -np.inf] * len(r) + [-np.inf] * len(self.extra_names())
+        matrix = np.column_stack([np.ones(n), ops, *self.extra(s)])
+        names = ["offset"] + [f"w[r={ri:.4g}]" if ri > 0 else "p0*v" for ri in r] + self.extra_names()
+        op_lower = [(0.0 if self.nonneg else -np.inf) if ri > 0 else -np.inf for ri in r]
+        lower = [-np.inf] + op_lower + [-np.inf] * len(self.extra_names())
         return Columns.of(matrix, names, lower, hysteresis=True)
 
     def extra(self, s: Signals) -> list[np.ndarray]:
@@ -513,7 +519,7 @@ class RateDependence(Component):
             if form == "auto":
                 f = np.empty_like(s.v)
                 a = np.empty_like(s.v)
-                MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(8), f, a)
+                MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f, a)
                 levels = f[f > 0]
                 spread = np.percentile(levels, 95) / max(np.percentile(levels, 5), 1e-12) if levels.size else 1.0
                 form = "frequency" if spread > 1.5 else "damping"
@@ -523,13 +529,13 @@ class RateDependence(Component):
             self.constants["rate_ref"] = float(np.sqrt(np.mean(rate**2))) or 1.0
             f_est = np.empty_like(s.v)
             a_est = np.empty_like(s.v)
-            MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(8), f_est, a_est)
+            MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f_est, a_est)
             self.constants["f_ref"] = float(np.max(f_est)) or 1.0
             self.constants["waveform"] = str(self.options.get("waveform", "sine"))
             self.constants["harmonics"] = int(self.options.get("harmonics", 9))
 
     def new_state(self) -> dict[str, Any]:
-        return {"tp": np.zeros(8)}
+        return {"tp": np.zeros(MK.N_TP)}
 
     def harmonic_moments(self) -> np.ndarray:
         """sum_i lambda_i i^j for j = 0..order (003 eq. 16); ones for a sine."""
@@ -630,10 +636,12 @@ class Dynamics(Component):
         kind = str(self.options.get("kind", "second-order"))
         self.constants["kind"] = kind
         nyq = s.fs / 2
+        # Up to ten times the Nyquist frequency, where the first-order-hold filter is the identity
+        # within a few per cent: adding dynamics to a model can always fall back to none.
         if kind == "first-order":
-            self.params = [ShapeParam("corner_hz", nyq / 10, nyq / 1e4, 0.9 * nyq, "Hz", log=True)]
+            self.params = [ShapeParam("corner_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True)]
         else:
-            self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 0.9 * nyq, "Hz", log=True),
+            self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True),
                            ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
 
     def coefficients(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
@@ -645,7 +653,10 @@ class Dynamics(Component):
         else:
             table = {"kind": "second-order", "gain": 1.0, "zeta": self.param("zeta"),
                      "natural_frequency_hz": self.param("natural_frequency_hz")}
-        return discretize_dynamics(table, fs)
+        # First-order hold: the poles are those of the zero-order hold (z = exp(s T)), so natural
+        # frequency and damping are the plant's, but no sample of delay is built in (the delay
+        # effect models delay).
+        return discretize_dynamics(table, fs, method="foh")
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
         return None

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from hilbench.sim.kernels import duhem_w_block, mplay_block
+from hilbench.sim.kernels import N_TP, TP_A, TP_F, duhem_w_block, mplay_block, turning_point_update
 
 __all__ = [
     "mplay_block",
@@ -21,6 +21,7 @@ __all__ = [
     "bouc_wen_block",
     "lowpass_block",
     "turning_point_frequency",
+    "N_TP",
     "fractional_delay",
 ]
 
@@ -63,31 +64,15 @@ def lowpass_block(u: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarra
 
 @njit(cache=True)
 def turning_point_frequency(u: np.ndarray, fs: float, state: np.ndarray, f_out: np.ndarray, a_out: np.ndarray) -> None:
-    """Drive frequency (Hz) and amplitude estimated from the last half cycle between turning points.
+    """Drive frequency (Hz) and amplitude from the last half cycle between turning points.
 
-    The same estimator as the simulated plant's 003 rate-dependence. state = [u_prev, dir, turn_u,
-    turn_n, f, a, n, started].
+    The same estimator as the simulated plant's 003 rate-dependence
+    (:func:`hilbench.sim.kernels.turning_point_update`); ``state`` has ``N_TP`` entries.
     """
     for k in range(u.shape[0]):
-        if state[7] == 0.0:
-            state[0] = u[k]
-            state[2] = u[k]
-            state[7] = 1.0
-        du = u[k] - state[0]
-        d = 1.0 if du > 0.0 else (-1.0 if du < 0.0 else 0.0)
-        if d != 0.0 and d != state[1]:
-            if state[1] != 0.0:
-                half = (state[6] - state[3]) / fs
-                if half > 0.0:
-                    state[4] = 0.5 / half
-                    state[5] = 0.5 * abs(u[k] - state[2])
-            state[2] = u[k]
-            state[3] = state[6]
-            state[1] = d
-        state[0] = u[k]
-        state[6] += 1.0
-        f_out[k] = state[4]
-        a_out[k] = state[5]
+        turning_point_update(state, u[k], fs)
+        f_out[k] = state[TP_F]
+        a_out[k] = state[TP_A]
 
 
 @njit(cache=True)

@@ -144,6 +144,9 @@ class RunData:
     #: model's memory is carried over, through a ramp from the previous run's last input to this
     #: run's first, as the rig moves between runs
     chain: bool = False
+    #: for a run that does not chain: the command the rig ramped from to the run's first sample
+    #: (its rest value after power-up), or None when unknown (imported data)
+    approach_from: float | None = None
 
     def __len__(self) -> int:
         return int(self.input.shape[0])
@@ -195,7 +198,10 @@ class Model:
     def _signals(self, run: RunData, u_delayed: np.ndarray) -> Signals:
         scale = float(self.norm["u_scale"])
         v = u_delayed / scale
-        vdot = np.gradient(v) * run.sample_rate_hz if v.shape[0] > 1 else np.zeros_like(v)
+        # backward difference: causal, as the step mode and a real-time compensator compute it
+        vdot = np.empty_like(v)
+        vdot[1:] = np.diff(v) * run.sample_rate_hz
+        vdot[:1] = vdot[1:2] if v.shape[0] > 1 else 0.0
         return Signals(u_delayed, v, vdot, run.aux, run.sample_rate_hz, self.norm)
 
     def _delayed(self, run: RunData) -> np.ndarray:
@@ -257,11 +263,13 @@ class Model:
         states = self.new_states()
         previous: RunData | None = None
         for run in runs:
+            first_aux = {k: float(v[0]) for k, v in run.aux.items()}
             if run.chain and previous is not None:
-                self.advance(states, float(previous.input[-1]), float(run.input[0]),
-                             {k: float(v[0]) for k, v in run.aux.items()})
+                self.advance(states, float(previous.input[-1]), float(run.input[0]), first_aux)
             else:
                 states = self.new_states()
+                if run.approach_from is not None:
+                    self.advance(states, float(run.approach_from), float(run.input[0]), first_aux)
             yield run, self.static_columns(run, states)
             previous = run
 

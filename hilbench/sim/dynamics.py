@@ -9,8 +9,12 @@ import numpy as np
 from hilbench.errors import ConfigError
 
 
-def discretize_dynamics(d: dict[str, Any], sample_rate_hz: float) -> tuple[np.ndarray, np.ndarray]:
-    """Discrete (b, a) of the dynamics table, a[0] = 1; continuous forms by zero-order hold."""
+def discretize_dynamics(d: dict[str, Any], sample_rate_hz: float, method: str = "zoh") -> tuple[np.ndarray, np.ndarray]:
+    """Discrete (b, a) of the dynamics table, a[0] = 1; continuous forms by ``method``.
+
+    Zero-order hold (the plant: a DAC holds each command) or first-order hold (the models: same
+    poles, but a static gain maps to itself, so very fast dynamics reduce to none).
+    """
     if d["kind"] == "discrete":
         b = np.asarray(d["b"], float)
         a = np.asarray(d["a"], float)
@@ -27,7 +31,7 @@ def discretize_dynamics(d: dict[str, Any], sample_rate_hz: float) -> tuple[np.nd
                 raise ConfigError("[plant.dynamics] transfer-function must be proper (len(num) <= len(den))")
         from scipy import signal as sps  # imported here: scipy.signal costs ~1.5 s and ~60 MB
 
-        bd, ad, _ = sps.cont2discrete((num, den), 1.0 / sample_rate_hz, method="zoh")
+        bd, ad, _ = sps.cont2discrete((num, den), 1.0 / sample_rate_hz, method=method)
         b = np.asarray(bd, float).ravel()
         a = np.asarray(ad, float).ravel()
     b, a = b / a[0], a / a[0]

@@ -70,11 +70,6 @@ X_AMP_Y = 0
 X_V_PREV = 1  # previous normalised input (Duhem, rate)
 X_DUHEM_W = 2
 X_RATE_V_PREV = 3
-X_TURN_V = 4  # rate mode 2: input at the last turning point
-X_TURN_T = 5  # sample index of the last turning point
-X_DIR = 6  # +1 rising, -1 falling, 0 unknown
-X_F_EST = 7  # estimated drive frequency, Hz
-X_A_EST = 8  # estimated drive amplitude, normalised units
 X_DELAY_IDX = 9
 X_N = 10  # samples processed
 X_STARTED = 11
@@ -96,6 +91,55 @@ def _poly(c: np.ndarray, x: float) -> float:
     for k in range(c.shape[0] - 1, -1, -1):
         acc = acc * x + c[k]
     return acc
+
+
+# -- turning-point estimate of the drive frequency (003 rate-dependence) ---------------------------
+TP_V1 = 0  # previous input
+TP_V2 = 1  # input two samples back
+TP_DIR = 2  # +1 rising, -1 falling, 0 unknown
+TP_TURN_V = 3  # input at the last turning point
+TP_TURN_T = 4  # time of the last turning point, samples (sub-sample)
+TP_F = 5  # estimated frequency, Hz
+TP_A = 6  # estimated amplitude (half the last excursion)
+TP_N = 7  # samples seen
+N_TP = 8
+
+
+@njit(cache=True, inline="always")
+def turning_point_update(st: np.ndarray, v: float, fs: float) -> None:
+    """Update the drive frequency/amplitude estimate with one input sample.
+
+    At each reversal of the input the turning point is located to a fraction of a sample by a
+    parabola through the three samples around it (so the estimate does not jump by a whole sample
+    period at high drive frequencies); f = 1 / (2 x the last half period), A = half the excursion.
+    """
+    n = st[TP_N]
+    if n == 0.0:
+        st[TP_V1] = v
+        st[TP_V2] = v
+        st[TP_TURN_V] = v
+    dv = v - st[TP_V1]
+    d = 1.0 if dv > 0.0 else (-1.0 if dv < 0.0 else 0.0)
+    if d != 0.0 and d != st[TP_DIR]:
+        a, b, c = st[TP_V2], st[TP_V1], v  # the extremum is near the previous sample
+        den = a - 2.0 * b + c
+        delta = 0.0
+        peak = b
+        if n >= 2.0 and den != 0.0:
+            delta = min(max(0.5 * (a - c) / den, -0.5), 0.5)
+            peak = b - 0.25 * (a - c) * delta
+        t_turn = n - 1.0 + delta
+        if st[TP_DIR] != 0.0:
+            half = (t_turn - st[TP_TURN_T]) / fs
+            if half > 0.0:
+                st[TP_F] = 0.5 / half
+                st[TP_A] = 0.5 * abs(peak - st[TP_TURN_V])
+        st[TP_TURN_V] = peak
+        st[TP_TURN_T] = t_turn
+        st[TP_DIR] = d
+    st[TP_V2] = st[TP_V1]
+    st[TP_V1] = v
+    st[TP_N] = n + 1.0
 
 
 @njit(cache=True)
@@ -184,6 +228,7 @@ def plant_block(
     creep_state: np.ndarray,
     dyn_state: np.ndarray,
     delay_buf: np.ndarray,
+    tp_state: np.ndarray,
     out_measured: np.ndarray,
     out_true: np.ndarray,
     out_drive: np.ndarray,
@@ -224,7 +269,6 @@ def plant_block(
         if X[X_STARTED] == 0.0:
             X[X_V_PREV] = v
             X[X_RATE_V_PREV] = v
-            X[X_TURN_V] = v
             X[X_STARTED] = 1.0
         # -- input shaping: fractional polynomial (000 eq. 4-5) --------------------------------
         vs = v
@@ -270,21 +314,12 @@ def plant_block(
             if rate_mode == 2.0:
                 # The drive frequency and amplitude are estimated from the last half cycle between
                 # turning points, as a bench would see them; k(f), c(f), m(f) follow 003 eq. 13.
-                d = 1.0 if vdot > 0.0 else (-1.0 if vdot < 0.0 else 0.0)
-                if d != 0.0 and d != X[X_DIR]:
-                    if X[X_DIR] != 0.0:
-                        half = (X[X_N] - X[X_TURN_T]) / fs
-                        if half > 0.0:
-                            X[X_F_EST] = 0.5 / half
-                            X[X_A_EST] = 0.5 * abs(v - X[X_TURN_V])
-                    X[X_TURN_V] = v
-                    X[X_TURN_T] = X[X_N]
-                    X[X_DIR] = d
-                f = X[X_F_EST]
+                turning_point_update(tp_state, v, fs)
+                f = tp_state[TP_F]
                 k_gain = _poly(rate_kp, f)
                 c = _poly(rate_cp, f)
                 m = _poly(rate_mp, f)
-                q = 2.0 * math.pi * f * X[X_A_EST]
+                q = 2.0 * math.pi * f * tp_state[TP_A]
             h = k_gain * h
             if q > 0.0 and vdot != 0.0:
                 mag = abs(vdot / q) ** m

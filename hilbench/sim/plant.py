@@ -184,6 +184,7 @@ class Plant:
         self.creep_state = np.zeros(self.creep_g.shape[0])
         self.dyn_state = np.zeros(max(len(self.dyn_a) - 1, 1))
         self.delay_buf = np.zeros(max(self.delay_samples, 1))
+        self.tp_state = np.zeros(K.N_TP)
         self.time_s = 0.0  # time of the next sample on the current run's clock
         self.samples = 0
         self._rng_output = np.random.default_rng([self.seed, 1])
@@ -215,7 +216,7 @@ class Plant:
             u, temperature, load, noise, self.S, self.in_exp, self.in_w, self.op_r, self.op_w, self.op_eta,
             self.asym, self.dz_r, self.dz_g, self.rate_kp, self.rate_cp, self.rate_mp, self.creep_g,
             self.creep_a, self.dyn_b, self.dyn_a, self.X, self.op_state, self.creep_state, self.dyn_state,
-            self.delay_buf, measured, true, drive,
+            self.delay_buf, self.tp_state, measured, true, drive,
         )
         self.samples += n
         self.time_s = self.samples / self.sample_rate_hz
