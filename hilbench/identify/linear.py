@@ -10,8 +10,8 @@ Three methods, each on plain arrays (input in the actuator unit, A or V; output 
   paper 002's ADT Step 1.
 * :func:`fit_transfer_function` -- the discrete transfer function of paper 000 eq. 15,
   ``G(z) = z^-d sum_{j=1..nb} b_j z^-j / (1 + sum_{i=1..na} a_i z^-i)``, by equation-error (ARX)
-  least squares refined to the output-error (simulation-error) optimum, kept stable;
-  :func:`search_delay` tries d = 0..max_delay.
+  least squares and Steiglitz-McBride iterations refined to the output-error (simulation-error)
+  optimum, kept stable; :func:`search_delay` tries d = 0..max_delay.
 
 Conventions follow scipy.signal: ``b`` and ``a`` are coefficient arrays in powers of z^-1 for
 ``lfilter(b, a, u)``; continuous ``num``/``den`` in descending powers of s. Note eq. 15 sums the
@@ -274,9 +274,10 @@ def _smooth(x: np.ndarray, width: int) -> np.ndarray:
 
 def _refine_onset(t: np.ndarray, r: np.ndarray, k0: int, k_end: int, noise_r: float, fallback: float) -> float:
     """Onset time (s) of a response from rest, between samples: least-squares fit of
-    ``r = tau^2 (alpha + beta tau + gamma tau^2)``, tau = t - t0 (the start of a second-order step response) to the
-    samples from a few before k0 up to where r passes 30 % of the step; ``fallback`` when the rise
-    is too fast to hold enough samples (then the onset is within a sample of k0 anyway)."""
+    ``r = tau^2 (alpha + beta tau + gamma tau^2)``, tau = t - t0 (the start of a second-order step
+    response), to the samples from a few before k0 up to where r passes 30 % of the step;
+    ``fallback`` when the rise is too fast to hold enough samples (the onset is then within a
+    sample of k0 anyway)."""
     lo = max(0, k0 - 5)
     above = np.nonzero(r[k0:k_end] > 0.3)[0]
     if above.size == 0:
@@ -293,8 +294,8 @@ def _refine_onset(t: np.ndarray, r: np.ndarray, k0: int, k_end: int, noise_r: fl
 
     x0 = np.array([float(t[k0]), 0.3, 0.0, 0.0])
     try:
-        res = optimize.least_squares(resid, x0, bounds=([t[lo], 0.0, -np.inf, -np.inf], [t[hi - 1], np.inf, np.inf, np.inf]),
-                                     x_scale=[scale, 1.0, 1.0, 1.0])
+        bounds = ([t[lo], 0.0, -np.inf, -np.inf], [t[hi - 1], np.inf, np.inf, np.inf])
+        res = optimize.least_squares(resid, x0, bounds=bounds, x_scale=[scale, 1.0, 1.0, 1.0])
     except ValueError:
         return fallback
     return float(res.x[0]) if res.success else fallback
@@ -750,7 +751,9 @@ class DiscreteTF:
     (``u_ref``: input at which the model rests at output ``y_ref``).
 
     metrics: hilbench metric keys (rmse in um, re_n2_pct, ...) of the free-run simulation against
-    the data the fit saw; arx_metrics: the same for the equation-error (ARX) start.
+    the data the fit saw; arx_metrics: the same for the equation-error (ARX) estimate. re_n2_pct is
+    relative to ||y|| including the operating point's offset (hilbench.metrics), so it is small
+    around a large offset; erms_pct (relative to the output's span) is the fairer figure there.
     """
 
     b: np.ndarray  # b_1..b_nb

@@ -22,6 +22,8 @@ import numpy as np
 from scipy import optimize
 
 from hilbench.errors import UserError
+from threadpoolctl import threadpool_limits
+
 from hilbench.models.model import Model, RunData
 
 
@@ -37,11 +39,12 @@ def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.nda
     Columns are scaled to unit norm; a tiny ridge keeps rank-deficient designs (over-parameterised
     modulated columns) solvable. Returns the weights in the original scaling.
     """
-    scale = np.linalg.norm(A, axis=0)
+    G = np.dot(A.T, A)  # a BLAS syrk (single-threaded during fits, see fit_model)
+    b = np.dot(A.T, y)
+    scale = np.sqrt(np.diag(G)).copy()  # scaling the p x p result avoids an n x p copy
     scale[scale == 0] = 1.0
-    As = A / scale
-    G = As.T @ As
-    b = As.T @ y
+    G /= np.outer(scale, scale)
+    b = b / scale
     p = G.shape[0]
     G[np.diag_indices(p)] += 1e-11 * max(float(np.trace(G)) / p, 1e-300)
     try:
@@ -77,12 +80,28 @@ class FitReport:
 
 
 class _Problem:
-    """The variable-projection residual of a model over training rows of several runs."""
+    """The variable-projection residual of a model over training rows of several runs.
 
-    def __init__(self, model: Model, runs: list[RunData], masks: list[np.ndarray]):
+    ``max_rows`` thins the training rows uniformly for the shape search (the weights of the final
+    model are solved on every row): at kHz sampling neighbouring rows carry little new information.
+    """
+
+    def __init__(self, model: Model, runs: list[RunData], masks: list[np.ndarray], max_rows: int | None = None):
         self.model = model
-        self.runs = runs
-        self.masks = [m & np.isfinite(r.output) for r, m in zip(runs, masks)]
+        masks = [m & np.isfinite(r.output) for r, m in zip(runs, masks)]
+        # runs after the last one with training rows cannot influence the fit
+        last = max((i for i, m in enumerate(masks) if m.any()), default=-1)
+        self.runs = runs[: last + 1]
+        self.masks = masks[: last + 1]
+        total = sum(int(m.sum()) for m in self.masks)
+        if max_rows is not None and total > max_rows:
+            stride = int(math.ceil(total / max_rows))
+            thinned = []
+            for m in self.masks:
+                keep = np.zeros_like(m)
+                keep[np.flatnonzero(m)[::stride]] = True
+                thinned.append(keep)
+            self.masks = thinned
         self.train_parts = _training_parts(model, runs, self.masks)
         self.y = np.concatenate([r.output[m] for r, m in zip(runs, self.masks)])
         if self.y.size == 0:
@@ -90,9 +109,10 @@ class _Problem:
         self.params = model.shape_params()
         self.log = np.array([p.log and p.lower > 0 for p in self.params], dtype=bool)
         self.evaluations = 0
-        # The static columns do not depend on the dynamics' poles: cache them while only those move.
-        dyn = model.effect("dynamics")
-        self._dynamic_ids = {id(p) for p in dyn.shape()} if dyn is not None else set()
+        # The static columns depend neither on the dynamics' poles nor on the delay: cache them
+        # while only those move.
+        post = [e for e in (model.effect("dynamics"), model.effect("delay")) if e is not None]
+        self._dynamic_ids = {id(p) for e in post for p in e.shape()}
         self._static_key: tuple[float, ...] | None = None
         self._static_blocks: list[Any] = []
 
@@ -119,9 +139,10 @@ class _Problem:
             self._static_key = key
         rows, lower, upper, names = [], None, None, []
         for run, blocks, mask in zip(self.runs, self._static_blocks, self.masks):
-            A, names, lower, upper = self.model._apply_dynamics(run, blocks)
-            rows.append(A[mask])
-        return np.vstack(rows), lower, upper, names
+            if mask.any():  # runs without training rows only carry the memory (static part)
+                A, names, lower, upper = self.model._apply_dynamics(run, blocks, np.flatnonzero(mask))
+                rows.append(A)
+        return (rows[0] if len(rows) == 1 else np.vstack(rows)), lower, upper, names
 
     def solve(self, theta: np.ndarray | None = None) -> tuple[WeightSolution, np.ndarray, list[str]]:
         if theta is not None:
@@ -158,7 +179,18 @@ def _sobol_points(lo: np.ndarray, hi: np.ndarray, n: int, seed: int) -> np.ndarr
     return qmc.scale(sampler.random(n), lo, hi)
 
 
-def fit_model(
+def fit_model(*args: Any, **kwargs: Any) -> FitReport:
+    """Identify ``model`` on the training rows of ``runs``; sets its shape parameters and weights.
+
+    See :func:`_fit_model` for the arguments. BLAS runs single-threaded meanwhile: the products
+    here are tall and thin, gain nothing from a few threads, and threads spinning on shared
+    cores slowed them a hundredfold in measurements.
+    """
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fit_model(*args, **kwargs)
+
+
+def _fit_model(
     model: Model,
     runs: list[RunData],
     train_masks: list[np.ndarray],
@@ -166,6 +198,7 @@ def fit_model(
     global_starts: int | None = None,
     local_starts: int = 2,
     max_evaluations: int = 400,
+    max_search_rows: int = 50_000,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> FitReport:
@@ -176,7 +209,7 @@ def fit_model(
         raise UserError("the training set is empty: no samples with a finite output")
     # normalisation and data-dependent constants from the training rows only
     model.prepare(_training_parts(model, runs, usable))
-    problem = _Problem(model, runs, train_masks)
+    problem = _Problem(model, runs, train_masks, max_rows=max_search_rows)
     params = problem.params
     history: list[dict[str, Any]] = []
     starts = 0
@@ -199,7 +232,7 @@ def fit_model(
             starts += 1
             result = optimize.least_squares(
                 problem.residual, x_start, bounds=(lo, hi), method="trf", x_scale=np.maximum(hi - lo, 1e-9) / 10,
-                diff_step=1e-4, max_nfev=max_evaluations // max(1, len(params)), ftol=1e-10, xtol=1e-10,
+                diff_step=1e-4, max_nfev=max_evaluations // max(1, len(params)), ftol=1e-9, xtol=1e-9,
             )
             sse = float(result.fun @ result.fun)
             history.append({"start_sse": sse_start, "sse": sse, "nfev": int(result.nfev)})
@@ -209,6 +242,8 @@ def fit_model(
                 best_sse, best_x = sse, result.x
         model.set_shape(problem.to_theta(best_x))
     model.finalize(problem.train_parts)
+    evaluations = problem.evaluations
+    problem = _Problem(model, runs, train_masks)  # the weights on every training row
     solution, _, names = problem.solve()
     model.weights = solution.weights
     model.weight_names = names
@@ -218,7 +253,7 @@ def fit_model(
         sse=solution.sse,
         rmse=math.sqrt(solution.sse / n),
         n_train=n,
-        evaluations=problem.evaluations,
+        evaluations=evaluations + 1,
         seconds=time.perf_counter() - t0,
         starts=starts,
         history=history,

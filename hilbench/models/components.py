@@ -663,6 +663,9 @@ class Dynamics(Component):
 
 
 class Delay(Component):
+    """Pure time delay of amplifier, sensor or DAQ: the static part's output is delayed by a
+    fractional number of samples (linear interpolation), before the dynamics."""
+
     name = "delay"
     summary = "pure time delay of amplifier, sensor or DAQ (fractional samples)"
     options_schema = {"max_s": float}

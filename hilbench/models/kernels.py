@@ -85,3 +85,58 @@ def fractional_delay(u: np.ndarray, delay_samples: float, first: float, out: np.
         a = u[i0] if i0 >= 0 else first
         b = u[i0 - 1] if i0 - 1 >= 0 else first
         out[k] = (1.0 - frac) * a + frac * b
+
+
+@njit(cache=True)
+def filter_columns(b: np.ndarray, a: np.ndarray, x: np.ndarray, zi: np.ndarray) -> np.ndarray:
+    """Filter every column of x (n, p) with the IIR (b, a), a[0] = 1, direct form II transposed.
+
+    ``zi`` (order, p) is the initial filter state of each column (scipy.signal.lfilter convention);
+    one pass over the rows keeps the memory access sequential (scipy filters column by column).
+    """
+    n, p = x.shape
+    order = zi.shape[0]
+    y = np.empty_like(x)
+    z = zi.copy()
+    for k in range(n):
+        for j in range(p):
+            xk = x[k, j]
+            yk = b[0] * xk + z[0, j]
+            for i in range(order - 1):
+                z[i, j] = b[i + 1] * xk + z[i + 1, j] - a[i + 1] * yk
+            z[order - 1, j] = b[order] * xk - a[order] * yk
+            y[k, j] = yk
+    return y
+
+
+@njit(cache=True)
+def delay_rows(x: np.ndarray, delay_samples: float) -> np.ndarray:
+    """Rows of x (n, p) delayed by a fractional number of samples (linear interpolation);
+    before the start the first row is held."""
+    n, p = x.shape
+    d_int = int(math.floor(delay_samples))
+    frac = delay_samples - d_int
+    out = np.empty_like(x)
+    for k in range(n):
+        i0 = max(k - d_int, 0)
+        i1 = max(k - d_int - 1, 0)
+        for j in range(p):
+            out[k, j] = (1.0 - frac) * x[i0, j] + frac * x[i1, j]
+    return out
+
+
+
+@njit(cache=True)
+def delay_gather(x: np.ndarray, rows: np.ndarray, delay_samples: float) -> np.ndarray:
+    """``delay_rows(x, d)[rows]`` without delaying the rows that are not wanted."""
+    p = x.shape[1]
+    d_int = int(math.floor(delay_samples))
+    frac = delay_samples - d_int
+    out = np.empty((rows.shape[0], p))
+    for r in range(rows.shape[0]):
+        k = rows[r]
+        i0 = max(k - d_int, 0)
+        i1 = max(k - d_int - 1, 0)
+        for j in range(p):
+            out[r, j] = (1.0 - frac) * x[i0, j] + frac * x[i1, j]
+    return out

@@ -195,23 +195,32 @@ class Model:
             k += n
 
     # -- signals -----------------------------------------------------------------------------------
-    def _signals(self, run: RunData, u_delayed: np.ndarray) -> Signals:
+    def _signals(self, run: RunData, u_delayed: np.ndarray, u_before: float | None = None) -> Signals:
+        """Normalised input and its rate; ``u_before`` is the sample before the first (chunks)."""
         scale = float(self.norm["u_scale"])
         v = u_delayed / scale
         # backward difference: causal, as the step mode and a real-time compensator compute it
         vdot = np.empty_like(v)
         vdot[1:] = np.diff(v) * run.sample_rate_hz
-        vdot[:1] = vdot[1:2] if v.shape[0] > 1 else 0.0
+        if u_before is not None:
+            vdot[:1] = (v[:1] - u_before / scale) * run.sample_rate_hz
+        else:
+            vdot[:1] = 0.0  # nothing before the first sample: at rest, as the step mode starts
         return Signals(u_delayed, v, vdot, run.aux, run.sample_rate_hz, self.norm)
 
     def _delayed(self, run: RunData) -> np.ndarray:
+        return np.ascontiguousarray(run.input, dtype=np.float64)
+
+    def _delay_rows(self, x: np.ndarray, fs: float) -> np.ndarray:
+        """The delay effect: the static part's output (every column) delayed, fractional samples.
+
+        A pure delay of amplifier, sensor or DAQ delays the actuator's response as a whole; on the
+        columns it is a linear operation, so it commutes with the weights and costs no refit.
+        """
         delay = self.effect("delay")
-        u = np.ascontiguousarray(run.input, dtype=np.float64)
         if delay is None:
-            return u
-        out = np.empty_like(u)
-        MK.fractional_delay(u, delay.param("seconds") * run.sample_rate_hz, float(u[0]), out)
-        return out
+            return x
+        return MK.delay_rows(np.ascontiguousarray(x), delay.param("seconds") * fs)
 
     def prepare(self, runs: list[RunData]) -> None:
         """Set normalisation and data-dependent constants from training runs (before fitting)."""
@@ -238,10 +247,12 @@ class Model:
         """Fresh memory of every component (virgin operators, empty filters)."""
         return [c.new_state() for c in self.components]
 
-    def static_columns(self, run: RunData, states: list[dict[str, Any]] | None = None) -> list[Columns]:
+    def static_columns(
+        self, run: RunData, states: list[dict[str, Any]] | None = None, u_before: float | None = None
+    ) -> list[Columns]:
         """The static regressor blocks of one run (before dynamics); ``states`` carry memory in/out."""
         states = self.new_states() if states is None else states
-        s = self._signals(run, self._delayed(run))
+        s = self._signals(run, self._delayed(run), u_before)
         blocks: list[Columns] = []
         for c, state in zip(self.components, states):
             block = c.columns(s, state, blocks)
@@ -251,7 +262,7 @@ class Model:
 
     def advance(self, states: list[dict[str, Any]], u_from: float, u_to: float, aux: dict[str, float]) -> None:
         """Carry the memory across the rig's unrecorded ramp from one run's end to the next's start."""
-        if u_from == u_to:
+        if abs(u_from - u_to) <= 1e-12 * float(self.norm.get("u_scale", 1.0)):
             return
         n = 64
         u = np.linspace(u_from, u_to, n)
@@ -260,6 +271,12 @@ class Model:
 
     def _sequence(self, runs: list[RunData]):
         """Yield (run, static blocks) with memory chained between runs marked ``chain``."""
+        for run, states in self._walk(runs):
+            yield run, self.static_columns(run, states)
+
+    def _walk(self, runs: list[RunData]):
+        """Yield (run, states ready for it): memory chained between runs marked ``chain``, else
+        fresh (after the rig's approach ramp when known). The consumer advances the states."""
         states = self.new_states()
         previous: RunData | None = None
         for run in runs:
@@ -270,7 +287,7 @@ class Model:
                 states = self.new_states()
                 if run.approach_from is not None:
                     self.advance(states, float(run.approach_from), float(run.input[0]), first_aux)
-            yield run, self.static_columns(run, states)
+            yield run, states
             previous = run
 
     def design_runs(self, runs: list[RunData]) -> list[tuple[np.ndarray, list[str], np.ndarray, np.ndarray]]:
@@ -281,7 +298,14 @@ class Model:
         """Regressor matrix of one run from fresh memory, dynamics applied, names and weight bounds."""
         return self._apply_dynamics(run, self.static_columns(run))
 
-    def _apply_dynamics(self, run: RunData, blocks: list[Columns]) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+    def _apply_dynamics(
+        self, run: RunData, blocks: list[Columns], rows: np.ndarray | None = None
+    ) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
+        """Stack the static blocks, apply the dynamics and the delay; ``rows`` selects rows.
+
+        Dynamics and delay are linear and time invariant, so their order does not matter; the
+        delay is applied last so that only the wanted rows are computed.
+        """
         matrix = np.hstack([b.matrix for b in blocks])
         names = [n for b in blocks for n in b.names]
         lower = np.concatenate([b.lower for b in blocks])
@@ -289,28 +313,53 @@ class Model:
         dyn = self.effect("dynamics")
         if dyn is not None:
             b, a = dyn.coefficients(run.sample_rate_hz)
-            zi = sps.lfilter_zi(b, a)
-            matrix = sps.lfilter(b, a, matrix, axis=0, zi=zi[:, None] * matrix[0][None, :])[0]
+            zi = sps.lfilter_zi(b, a)  # start in steady state at each column's first value
+            matrix = MK.filter_columns(b, a, np.ascontiguousarray(matrix), np.outer(zi, matrix[0]))
+        delay = self.effect("delay")
+        if delay is not None:
+            d = delay.param("seconds") * run.sample_rate_hz
+            if rows is not None:
+                return MK.delay_gather(np.ascontiguousarray(matrix), rows, d), names, lower, upper
+            matrix = MK.delay_rows(np.ascontiguousarray(matrix), d)
+        if rows is not None:
+            matrix = matrix[rows]
         return np.ascontiguousarray(matrix), names, lower, upper
 
     # -- simulation ----------------------------------------------------------------------------------
     def simulate(self, run: RunData) -> np.ndarray:
-        """Free-run model output for a whole run from fresh memory (block mode), um."""
-        return self._output(run, self.static_columns(run))
+        """Free-run model output of one run (block mode), um; memory fresh, or after the rig's
+        approach ramp when ``run.approach_from`` is known."""
+        return self.simulate_runs([run])[0]
 
     def simulate_runs(self, runs: list[RunData]) -> list[np.ndarray]:
         """Free-run outputs of runs, memory chained between runs marked ``chain``."""
-        return [self._output(run, blocks) for run, blocks in self._sequence(runs)]
+        return [self._output(run, states) for run, states in self._walk(runs)]
 
-    def _output(self, run: RunData, blocks: list[Columns]) -> np.ndarray:
+    #: samples per block when simulating: the regressor columns of a block stay in the cache
+    SIMULATION_BLOCK = 4096
+
+    def _output(self, run: RunData, states: list[dict[str, Any]]) -> np.ndarray:
+        """Weighted sum of the static columns block by block (memory carried in ``states``), then
+        the delay and the dynamics on the one resulting signal (they are linear)."""
         if self.weights is None:
             raise UserError("the model has no weights yet: fit it first")
-        h = np.zeros(len(run))
-        k = 0
-        for b in blocks:
-            p = b.matrix.shape[1]
-            h += b.matrix @ self.weights[k : k + p]
-            k += p
+        n = len(run)
+        h = np.empty(n)
+        u_before: float | None = None
+        for start in range(0, n, self.SIMULATION_BLOCK):
+            stop = min(n, start + self.SIMULATION_BLOCK)
+            part = RunData(run.input[start:stop], None, {k: v[start:stop] for k, v in run.aux.items()},
+                           run.sample_rate_hz)
+            blocks = self.static_columns(part, states, u_before)
+            acc = np.zeros(stop - start)
+            k = 0
+            for b in blocks:
+                p = b.matrix.shape[1]
+                acc += b.matrix @ self.weights[k : k + p]
+                k += p
+            h[start:stop] = acc
+            u_before = float(run.input[stop - 1])
+        h = self._delay_rows(h[:, None], run.sample_rate_hz)[:, 0]
         dyn = self.effect("dynamics")
         if dyn is not None:
             bb, aa = dyn.coefficients(run.sample_rate_hz)
@@ -404,18 +453,6 @@ class ModelStepper:
 
     def step(self, u: float, aux: dict[str, float] | None = None) -> float:
         m = self.model
-        delay = m.effect("delay")
-        if delay is not None:
-            self.history.append(u)
-            d = delay.param("seconds") * self.fs
-            di = int(np.floor(d))
-            frac = d - di
-            hist = self.history
-            a = hist[-1 - di] if len(hist) > di else hist[0]
-            b = hist[-2 - di] if len(hist) > di + 1 else hist[0]
-            u = (1 - frac) * a + frac * b
-            if len(hist) > di + 4:
-                del hist[: len(hist) - di - 4]
         scale = float(m.norm["u_scale"])
         v = np.array([u / scale])
         vdot = np.array([0.0 if self.u_prev is None else (u - self.u_prev) / scale * self.fs])
@@ -428,6 +465,18 @@ class ModelStepper:
                 blocks.append(block)
         row = np.concatenate([b.matrix[0] for b in blocks])
         h = float(row @ m.weights)
+        delay = m.effect("delay")
+        if delay is not None:  # the static part's output, delayed (fractional samples)
+            hist = self.history
+            hist.append(h)
+            d = delay.param("seconds") * self.fs
+            di = int(np.floor(d))
+            frac = d - di
+            a = hist[-1 - di] if len(hist) > di else hist[0]
+            b = hist[-2 - di] if len(hist) > di + 1 else hist[0]
+            h = (1 - frac) * a + frac * b
+            if len(hist) > di + 4:
+                del hist[1 : len(hist) - di - 3]  # keep the first value (held before the start)
         if self.filter is None:
             return h
         b, a = self.filter
