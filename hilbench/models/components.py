@@ -554,14 +554,13 @@ class RateDependence(Component):
         if self.constants["form"] == "damping":
             q = float(self.constants["rate_ref"])
             rate = np.abs(s.vdot) / q
-            cols = [sgn * rate**m]
+            mats = [(sgn * rate**m)[:, None]]
             names = ["c*sgn(v')|v'/Q|^m"]
             for block in hyst:
-                for j, name in enumerate(block.names):
-                    if name != "offset":
-                        cols.append(block.matrix[:, j] * rate)
-                        names.append(f"{name}*|v'|/Q")
-            return Columns.of(np.column_stack(cols), names)
+                keep = [j for j, name in enumerate(block.names) if name != "offset"]
+                mats.append(block.matrix[:, keep] * rate[:, None])
+                names += [f"{block.names[j]}*|v'|/Q" for j in keep]
+            return Columns.of(np.hstack(mats), names)
         f = np.empty_like(s.v)
         a = np.empty_like(s.v)
         MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
@@ -570,16 +569,17 @@ class RateDependence(Component):
         with np.errstate(divide="ignore", invalid="ignore"):
             md = np.where(q > 0, sgn * np.abs(s.vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
         moments = self.harmonic_moments()
-        cols, names = [], []
         order = int(self.constants["order"])
+        mats, names = [], []
         for j in range(order):
-            cols.append(md * fn**j * moments[j])
+            mats.append((md * (fn**j * moments[j]))[:, None])
             names.append(f"c{j}*f^{j}*y_MD")
         for j in range(1, order + 1):
+            factor = (fn**j * moments[j])[:, None]  # once per power, not per column
             for block in hyst:
-                for k, name in enumerate(block.names):
-                    cols.append(block.matrix[:, k] * fn**j * moments[j])
-                    names.append(f"{name}*f^{j}")
+                mats.append(block.matrix * factor)
+                names += [f"{name}*f^{j}" for name in block.names]
+        return Columns.of(np.hstack(mats), names)
         return Columns.of(np.column_stack(cols), names)
 
 
@@ -606,14 +606,13 @@ class AuxChannel(Component):
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
-        cols, names = [da], [f"{self.channel}:offset"]
+        mats, names = [da[:, None]], [f"{self.channel}:offset"]
         for block in previous:
             if block.hysteresis:
-                for k, name in enumerate(block.names):
-                    if name != "offset":
-                        cols.append(block.matrix[:, k] * da)
-                        names.append(f"{name}*d{self.channel}")
-        return Columns.of(np.column_stack(cols), names)
+                keep = [k for k, name in enumerate(block.names) if name != "offset"]
+                mats.append(block.matrix[:, keep] * da[:, None])
+                names += [f"{block.names[k]}*d{self.channel}" for k in keep]
+        return Columns.of(np.hstack(mats), names)
 
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "name": self.channel, "channel": self.channel}

@@ -30,22 +30,39 @@ __all__ = [
 def bouc_wen_block(u: np.ndarray, beta: float, gamma: float, n: float, state: np.ndarray, out: np.ndarray) -> None:
     """Bouc-Wen state z with unit A: dz = du - beta |du| |z|^(n-1) z - gamma du |z|^n.
 
-    Integrated over the input (rate independent) with the midpoint rule in 8 sub-steps per sample;
-    ``state = [z, u_prev]``. The model output scales z by A, which is therefore a linear weight.
+    Integrated over the input (rate independent); ``state = [z, u_prev]``. For n = 1 the equation
+    is linear in z while the signs of du and z hold, dz/du = 1 - (beta sgn(du) + gamma sgn(z)) z,
+    and is solved exactly per sample; a step in which z changes sign, and n != 1, use the
+    midpoint rule in 8 sub-steps. The model output scales z by A, a linear weight.
     """
     z = state[0]
     u_prev = state[1]
     for k in range(u.shape[0]):
-        du = (u[k] - u_prev) / 8.0
+        du = u[k] - u_prev
         if du != 0.0:
-            adu = abs(du)
-            for _ in range(8):
-                az = abs(z)
-                f1 = du - beta * adu * (az ** (n - 1.0)) * z - gamma * du * az**n
-                zm = z + 0.5 * f1
-                azm = abs(zm)
-                f2 = du - beta * adu * (azm ** (n - 1.0)) * zm - gamma * du * azm**n
-                z = z + f2
+            done = False
+            if n == 1.0:
+                s = 1.0 if du > 0.0 else -1.0
+                sig = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else s)
+                kk = beta * s + gamma * sig
+                if abs(kk * du) < 1e-9:
+                    z_new = z + du * (1.0 - kk * z)
+                else:
+                    z_eq = 1.0 / kk
+                    z_new = z_eq + (z - z_eq) * math.exp(-kk * du)
+                if z_new * sig >= 0.0:
+                    z = z_new
+                    done = True
+            if not done:
+                h = du / 8.0
+                ah = abs(h)
+                for _ in range(8):
+                    az = abs(z)
+                    f1 = h - beta * ah * (az ** (n - 1.0)) * z - gamma * h * az**n
+                    zm = z + 0.5 * f1
+                    azm = abs(zm)
+                    f2 = h - beta * ah * (azm ** (n - 1.0)) * zm - gamma * h * azm**n
+                    z = z + f2
         u_prev = u[k]
         out[k] = z
     state[0] = z
