@@ -147,7 +147,10 @@ def mplay_block(v: np.ndarray, r: np.ndarray, eta: np.ndarray, state: np.ndarray
     """M-play operator outputs (004 eq. 6) for every sample: out[n, i] = max(v - r_i, min(v + eta_i r_i, w_i)).
 
     eta = 1 gives the play (backlash) operator, eta = 0 the one-sided play operator (000 eq. 1,
-    003 eq. 2). ``state`` holds each operator's last output and is updated in place.
+    003 eq. 2). The one-sided play with threshold r is the play with threshold r/2 shifted down
+    by r/2, F1_r[v] = F_{r/2}[v] - r/2, once the input has risen above r (before that the two
+    differ only by their initial states). ``state`` holds each operator's last output and is
+    updated in place.
     """
     for n in range(v.shape[0]):
         x = v[n]
