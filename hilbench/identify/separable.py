@@ -106,7 +106,8 @@ class _Problem:
         self.y = np.concatenate([r.output[m] for r, m in zip(runs, self.masks)])
         if self.y.size == 0:
             raise UserError("the training set is empty: no samples with a finite output")
-        self.params = model.shape_params()
+        # fixed parameters (lower == upper, set by spec options) are not searched
+        self.params = [p for p in model.shape_params() if p.upper > p.lower]
         self.log = np.array([p.log and p.lower > 0 for p in self.params], dtype=bool)
         self.evaluations = 0
         # The static columns depend neither on the dynamics' poles nor on the delay: cache them
@@ -146,7 +147,8 @@ class _Problem:
 
     def solve(self, theta: np.ndarray | None = None) -> tuple[WeightSolution, np.ndarray, list[str]]:
         if theta is not None:
-            self.model.set_shape(theta)
+            for p, value in zip(self.params, theta):
+                p.value = float(value)
             # constants that follow the shape (FPMPI thresholds) are those of the final model
             self.model.finalize(self.train_parts)
         self.evaluations += 1
@@ -240,7 +242,8 @@ def _fit_model(
                 progress(f"local search {starts}: sse {sse:.6g} after {result.nfev} evaluations")
             if sse < best_sse:
                 best_sse, best_x = sse, result.x
-        model.set_shape(problem.to_theta(best_x))
+        for p, value in zip(params, problem.to_theta(best_x)):
+            p.value = float(value)
     model.finalize(problem.train_parts)
     evaluations = problem.evaluations
     problem = _Problem(model, runs, train_masks)  # the weights on every training row

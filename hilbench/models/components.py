@@ -89,6 +89,17 @@ class Component:
     def shape(self) -> list[ShapeParam]:
         return self.params
 
+    def fix_from_options(self) -> None:
+        """A spec option named like a shape parameter fixes it: ``dynamics(zeta=0.28)``.
+
+        Fixed parameters (lower == upper) keep their value during identification, e.g. dynamics
+        identified beforehand from a step response (002 sec. 3.2.1).
+        """
+        for p in self.params:
+            if p.name in self.options:
+                value = float(self.options[p.name])
+                p.value = p.lower = p.upper = value
+
     def set_shape(self, values: np.ndarray) -> None:
         for p, v in zip(self.params, values):
             p.value = float(v)
@@ -453,6 +464,7 @@ class Asymmetry(Component):
 class Saturation(Component):
     name = "saturation"
     summary = "loop flattening at large drive: tanh(v/s) and the fractional terms sgn(v)|v|^(1/2), ^(1/3)"
+    options_schema = {"s": float}
 
     def prepare(self, s: Signals) -> None:
         if not self.params:
@@ -509,7 +521,7 @@ class RateDependence(Component):
 
     name = "rate-dependence"
     summary = "loop width and gain change with input rate: velocity damping, frequency polynomials (003)"
-    options_schema = {"form": str, "order": int, "waveform": str, "harmonics": int}
+    options_schema = {"form": str, "order": int, "waveform": str, "harmonics": int, "m": float}
 
     def prepare(self, s: Signals) -> None:
         if not self.params:
@@ -627,7 +639,7 @@ class Dynamics(Component):
 
     name = "dynamics"
     summary = "linear dynamics after the hysteresis: second-order plant (002) or first-order lag"
-    options_schema = {"kind": str}
+    options_schema = {"kind": str, "natural_frequency_hz": float, "zeta": float, "corner_hz": float}
 
     def prepare(self, s: Signals) -> None:
         if self.params:
@@ -667,7 +679,7 @@ class Delay(Component):
 
     name = "delay"
     summary = "pure time delay of amplifier, sensor or DAQ (fractional samples)"
-    options_schema = {"max_s": float}
+    options_schema = {"max_s": float, "seconds": float}
 
     def prepare(self, s: Signals) -> None:
         if not self.params:

@@ -232,6 +232,7 @@ class Model:
         signals = self._signals(joined, u)
         for c in self.components:
             c.prepare(signals)
+            c.fix_from_options()
 
     def finalize(self, runs: list[RunData]) -> None:
         """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds)."""
