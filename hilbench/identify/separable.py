@@ -164,6 +164,18 @@ class _Problem:
         return A @ sol.weights - self.y
 
 
+def _copy_shape(source: Model, target: Model) -> None:
+    """Start ``target``'s search from ``source``'s fitted shape parameters where they match (same
+    component, same name): a staged identification, e.g. the hysteresis on quasi-static data
+    first, then hysteresis and dynamics together (000 sec. 4.1)."""
+    fitted = {(getattr(c, "channel", c.name), p.name): p.value for c in source.components for p in c.shape()}
+    for c in target.components:
+        for p in c.shape():
+            value = fitted.get((getattr(c, "channel", c.name), p.name))
+            if value is not None and p.upper > p.lower:
+                p.value = float(min(max(value, p.lower), p.upper))
+
+
 def _training_parts(model: Model, runs: list[RunData], masks: list[np.ndarray]) -> list[RunData]:
     """The training rows of each run (for normalisation and data-dependent constants)."""
     parts = []
@@ -203,6 +215,7 @@ def _fit_model(
     max_search_rows: int = 50_000,
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
+    start_from: Model | None = None,
 ) -> FitReport:
     """Identify ``model`` on the training rows of ``runs``; sets its shape parameters and weights."""
     t0 = time.perf_counter()
@@ -211,6 +224,8 @@ def _fit_model(
         raise UserError("the training set is empty: no samples with a finite output")
     # normalisation and data-dependent constants from the training rows only
     model.prepare(_training_parts(model, runs, usable))
+    if start_from is not None:
+        _copy_shape(start_from, model)
     problem = _Problem(model, runs, train_masks, max_rows=max_search_rows)
     params = problem.params
     history: list[dict[str, Any]] = []
