@@ -595,6 +595,53 @@ class RateDependence(Component):
         return Columns.of(np.column_stack(cols), names)
 
 
+def _modulated_sum(hyst: list[Columns], weights: np.ndarray, skip_offset: bool) -> tuple[np.ndarray, int]:
+    """Sum over the hysteresis blocks of their columns times consecutive weights (the layout of the
+    modulated copies), and how many weights that took."""
+    total = None
+    k = 0
+    for block in hyst:
+        keep = [j for j, name in enumerate(block.names) if not (skip_offset and name == "offset")]
+        part = block.matrix[:, keep] @ weights[k : k + len(keep)]
+        total = part if total is None else total + part
+        k += len(keep)
+    return (total if total is not None else 0.0), k
+
+
+def _rate_contribution(self: RateDependence, s: Signals, state: dict[str, Any], previous: list[Columns],
+                       weights: np.ndarray) -> tuple[np.ndarray, int]:
+    """Simulation without materialising the modulated columns: the modulating signal times one
+    weighted sum of the hysteresis columns per modulation (same result as columns() @ weights)."""
+    m = self.param("m")
+    sgn = np.sign(s.vdot)
+    hyst = [b for b in previous if b.hysteresis]
+    if self.constants["form"] == "damping":
+        rate = np.abs(s.vdot) / float(self.constants["rate_ref"])
+        total, k = _modulated_sum(hyst, weights[1:], skip_offset=True)
+        return weights[0] * sgn * rate**m + rate * total, 1 + k
+    f = np.empty_like(s.v)
+    a = np.empty_like(s.v)
+    MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
+    fn = f / float(self.constants["f_ref"])
+    q = 2.0 * np.pi * f * a
+    with np.errstate(divide="ignore", invalid="ignore"):
+        md = np.where(q > 0, sgn * np.abs(s.vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
+    moments = self.harmonic_moments()
+    order = int(self.constants["order"])
+    out = np.zeros_like(s.v)
+    for j in range(order):
+        out += weights[j] * md * (fn**j * moments[j])
+    k = order
+    for j in range(1, order + 1):
+        total, used = _modulated_sum(hyst, weights[k:], skip_offset=False)
+        out += (fn**j * moments[j]) * total
+        k += used
+    return out, k
+
+
+RateDependence.contribution = _rate_contribution  # type: ignore[attr-defined]
+
+
 class AuxChannel(Component):
     """Dependence on a recorded auxiliary channel a (temperature, load, ...): an offset proportional
     to a - a_ref (thermal strain, load compliance) and gain changes of the hysteresis columns."""
@@ -625,6 +672,13 @@ class AuxChannel(Component):
                 mats.append(block.matrix[:, keep] * da[:, None])
                 names += [f"{block.names[k]}*d{self.channel}" for k in keep]
         return Columns.of(np.hstack(mats), names)
+
+    def contribution(self, s: Signals, state: dict[str, Any], previous: list[Columns],
+                     weights: np.ndarray) -> tuple[np.ndarray, int]:
+        """Simulation without materialising the modulated columns (see columns())."""
+        da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
+        total, k = _modulated_sum([b for b in previous if b.hysteresis], weights[1:], skip_offset=True)
+        return weights[0] * da + da * total, 1 + k
 
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "name": self.channel, "channel": self.channel}

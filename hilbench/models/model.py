@@ -351,13 +351,23 @@ class Model:
             stop = min(n, start + self.SIMULATION_BLOCK)
             part = RunData(run.input[start:stop], None, {k: v[start:stop] for k, v in run.aux.items()},
                            run.sample_rate_hz)
-            blocks = self.static_columns(part, states, u_before)
+            s = self._signals(part, self._delayed(part), u_before)
+            blocks: list[Columns] = []
             acc = np.zeros(stop - start)
             k = 0
-            for b in blocks:
-                p = b.matrix.shape[1]
-                acc += b.matrix @ self.weights[k : k + p]
-                k += p
+            for c, state in zip(self.components, states):
+                contribution = getattr(c, "contribution", None)
+                if contribution is not None:  # modulating effects: no n x p copies
+                    vec, used = contribution(s, state, blocks, self.weights[k:])
+                    acc += vec
+                    k += used
+                    continue
+                block = c.columns(s, state, blocks)
+                if block is not None:
+                    blocks.append(block)
+                    p = block.matrix.shape[1]
+                    acc += block.matrix @ self.weights[k : k + p]
+                    k += p
             h[start:stop] = acc
             u_before = float(run.input[stop - 1])
         h = self._delay_rows(h[:, None], run.sample_rate_hz)[:, 0]
