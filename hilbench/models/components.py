@@ -688,12 +688,15 @@ class Dynamics(Component):
     """Linear dynamics after the static part (002 eq. 7, 000 eq. 15), unit static gain.
 
     kind second-order (default): K wn^2 / (s^2 + 2 zeta wn s + wn^2) with K = 1, zeta and the natural
-    frequency searched; kind first-order: one pole. Discretised by zero-order hold.
+    frequency searched; kind first-order: one pole; both discretised by first-order hold. kind
+    discrete: a discrete transfer function B(z)/A(z) as 000 eq. 15, with ``pairs`` pairs of complex
+    poles (radius < 1, so always stable) and ``zeros`` numerator coefficients, scaled to unit gain.
     """
 
     name = "dynamics"
-    summary = "linear dynamics after the hysteresis: second-order plant (002) or first-order lag"
-    options_schema = {"kind": str, "natural_frequency_hz": float, "zeta": float, "corner_hz": float}
+    summary = "linear dynamics after the hysteresis: second-order plant (002), first-order lag, or discrete TF (000)"
+    options_schema = {"kind": str, "natural_frequency_hz": float, "zeta": float, "corner_hz": float,
+                      "pairs": int, "zeros": int}
 
     def prepare(self, s: Signals) -> None:
         if self.params:
@@ -705,6 +708,14 @@ class Dynamics(Component):
         # within a few per cent: adding dynamics to a model can always fall back to none.
         if kind == "first-order":
             self.params = [ShapeParam("corner_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True)]
+        elif kind == "discrete":
+            pairs = int(self.options.get("pairs", 2))
+            zeros = int(self.options.get("zeros", 2))
+            self.params = []
+            for k in range(pairs):
+                self.params += [ShapeParam(f"radius_{k}", 0.9, 0.0, 0.9995, doc="pole radius"),
+                                ShapeParam(f"angle_{k}", (k + 1) * 0.3, 0.0, math.pi, "rad/sample")]
+            self.params += [ShapeParam(f"zero_coef_{j}", 0.0, -2.0, 2.0) for j in range(1, zeros + 1)]
         else:
             self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True),
                            ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
@@ -712,6 +723,20 @@ class Dynamics(Component):
     def coefficients(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
         from hilbench.sim.dynamics import discretize_dynamics
 
+        if self.constants["kind"] == "discrete":
+            a = np.ones(1)
+            b = np.ones(1)
+            for p in self.params:
+                if p.name.startswith("radius_"):
+                    k = p.name.split("_")[1]
+                    rho, theta = p.value, self.param(f"angle_{k}")
+                    a = np.convolve(a, [1.0, -2.0 * rho * math.cos(theta), rho * rho])
+                elif p.name.startswith("zero_coef_"):
+                    b = np.append(b, p.value)
+            gain = b.sum()
+            b = b * (a.sum() / gain) if abs(gain) > 1e-9 else b * 0.0  # unit static gain
+            n = max(a.size, b.size)
+            return np.pad(b, (0, n - b.size)), np.pad(a, (0, n - a.size))
         if self.constants["kind"] == "first-order":
             wc = 2 * math.pi * self.param("corner_hz")
             table = {"kind": "transfer-function", "num": [wc], "den": [1.0, wc]}

@@ -31,7 +31,7 @@ def data(n: int = 6000, seed: int = 0) -> RunData:
 
 SPECS = [*BASES, "pi+asymmetry", "pi+saturation", "pi+creep", "pi+rate-dependence(form=damping)",
          "pi1+asymmetry+rate-dependence(form=frequency)", "pmpi+dynamics", "fpmpi+dynamics+delay",
-         "pi+temperature", "pi(n=16)+delay+dynamics(kind=first-order)"]
+         "pi+temperature", "pi(n=16)+delay+dynamics(kind=first-order)", "pi+dynamics(kind=discrete,pairs=1,zeros=1)"]
 
 
 @pytest.mark.parametrize("spec", SPECS)
@@ -101,3 +101,37 @@ def test_bad_specs(spec, fragment):
     assert fragment in line and "\n" not in line
     if "unknown base" in fragment or "no channel" in fragment:
         assert "bases: linear, pi, pi1" in line and "effects: asymmetry" in line
+
+
+def test_discrete_dynamics_recover_a_resonance():
+    """000 eq. 15 as a model effect: a discrete transfer function after the hysteresis."""
+    from scipy import signal as sps
+
+    run = data(n=20000, seed=3)
+    b, a = sps.cont2discrete(([(2 * np.pi * 40) ** 2], [1, 2 * 0.3 * 2 * np.pi * 40, (2 * np.pi * 40) ** 2]),
+                             1 / FS, method="zoh")[:2]
+    b = b.ravel()
+    y = sps.lfilter(b, a, run.output, zi=sps.lfilter_zi(b, a) * run.output[0])[0]
+    rich = RunData(run.input, y, {}, FS)
+    model = Model("pi+asymmetry+dynamics(kind=discrete,pairs=1,zeros=2)")
+    report = fit_model(model, [rich], [np.ones(len(rich), bool)], global_starts=16)
+    assert report.rmse < 0.05  # noise 0.01 through the filter
+    dyn = model.effect("dynamics")
+    rho, theta = dyn.param("radius_0"), dyn.param("angle_0")
+    true_pole = np.roots(a)[0]
+    assert rho == pytest.approx(abs(true_pole), abs=5e-3) and theta == pytest.approx(abs(np.angle(true_pole)), abs=5e-3)
+
+
+def test_triangle_harmonic_weights_of_eq_16():
+    from hilbench.models.components import RateDependence
+
+    rd = RateDependence({"waveform": "triangle"})
+    rd.constants.update({"order": 3, "waveform": "triangle", "harmonics": 9})
+    moments = rd.harmonic_moments()
+    # eq. 16: lambda_i proportional to 1/i^2 for odd i (even harmonics vanish), M = 9
+    i = np.array([1, 3, 5, 7, 9], float)
+    lam = (1 / i**2) / np.sum(1 / i**2)
+    np.testing.assert_allclose(moments, [1.0, np.sum(lam * i), np.sum(lam * i**2), np.sum(lam * i**3)])
+    assert lam[0] == pytest.approx(0.8447, abs=1e-4)  # the fundamental carries 84 % of the weight
+    rd.constants["waveform"] = "sine"
+    np.testing.assert_allclose(rd.harmonic_moments(), np.ones(4))
