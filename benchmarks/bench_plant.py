@@ -173,7 +173,7 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
     u_block = u[:samples]
 
     # -- block mode ----------------------------------------------------------------------------
-    C.note(f"[plant] warm-up (numba compile or cache load) ...")
+    C.note("[plant] warm-up (numba compile or cache load) ...")
     t0 = time.perf_counter()
     plant.simulate(u[:1000])
     warmup_s = time.perf_counter() - t0
@@ -190,7 +190,7 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
             u_block, np.zeros(0), np.zeros(0), noise, plant.S, plant.in_exp, plant.in_w, plant.op_r, plant.op_w,
             plant.op_eta, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp, plant.rate_cp, plant.rate_mp,
             plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state, plant.creep_state,
-            plant.dyn_state, plant.delay_buf, *bufs,
+            plant.dyn_state, plant.delay_buf, plant.tp_state, *bufs,
         )
 
     C.note("[plant] kernel alone (preallocated buffers) ...")
@@ -290,7 +290,7 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
                 u1, e0, e0, zero1, plant.S, plant.in_exp, plant.in_w, plant.op_r, plant.op_w,
                 plant.op_eta, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp, plant.rate_cp, plant.rate_mp,
                 plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state,
-                plant.creep_state, plant.dyn_state, plant.delay_buf, *one,
+                plant.creep_state, plant.dyn_state, plant.delay_buf, plant.tp_state, *one,
             )
 
     try:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hilbench.plotting import _stride
+from hilbench.plotting import _stride, save_figure
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -45,13 +45,7 @@ def plot_fit(result: FitResult, png: str | os.PathLike[str], *, max_points: int 
     fig.suptitle(f"{result.spec} ({how}): rmse train {trn['rmse']:.4g}, validation {val['rmse']:.4g} "
                  f"{result.output_unit}{note}", fontsize=11)
     fig.tight_layout()
-    out = Path(png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fig.savefig(out, dpi=100)
-    finally:
-        plt.close(fig)
-    return out
+    return save_figure(fig, png)
 
 
 def _spans(mask: np.ndarray) -> list[tuple[int, int]]:

@@ -26,7 +26,7 @@ import numpy as np
 
 from hilbench.config import ActuatorConfig, read_toml
 from hilbench.errors import ConfigError, PlanLimitError
-from hilbench.schema import Key, check_table
+from hilbench.schema import Key, check_table, parse_scalar
 from hilbench.signals import Excitation, make_excitation
 
 
@@ -66,18 +66,6 @@ def expand_runs(tables: list[Mapping[str, Any]], *, file: str, table: str = "pla
     return runs
 
 
-def _parse_scalar(text: str) -> Any:
-    text = text.strip()
-    for conv in (int, float):
-        try:
-            return conv(text)
-        except ValueError:
-            pass
-    if text.lower() in ("true", "false"):
-        return text.lower() == "true"
-    return text
-
-
 def parse_compact(spec: str) -> dict[str, Any]:
     """``"sine:amplitude=1|2,frequency_hz=1,cycles=5"`` -> a run table (with ``sweep``)."""
     where = f"--excitation {spec!r}"
@@ -92,11 +80,11 @@ def parse_compact(spec: str) -> dict[str, Any]:
             raise ConfigError(f"expected key=value, got {item!r}", where=where)
         key = key.strip()
         if "|" in value:
-            sweep[key] = [_parse_scalar(v) for v in value.split("|")]
+            sweep[key] = [parse_scalar(v) for v in value.split("|")]
         elif "/" in value:
-            table[key] = [_parse_scalar(v) for v in value.split("/")]
+            table[key] = [parse_scalar(v) for v in value.split("/")]
         else:
-            table[key] = _parse_scalar(value)
+            table[key] = parse_scalar(value)
     if sweep:
         table["sweep"] = sweep
     return table

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -70,9 +70,13 @@ def plot_runs(
     runs by name, label or 1-based index (default: all, at most 12); runs longer than
     ``max_points`` samples are drawn with every k-th sample.
     """
+    return save_figure(make_figure(path, runs=runs, max_points=max_points), output_png)
+
+
+def save_figure(fig: Any, output_png: str | Path) -> Path:
+    """Write a figure to PNG (folders created) and release it."""
     import matplotlib.pyplot as plt
 
-    fig = make_figure(path, runs=runs, max_points=max_points)
     out = Path(output_png)
     out.parent.mkdir(parents=True, exist_ok=True)
     try:

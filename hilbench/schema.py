@@ -146,3 +146,16 @@ def check_table(
         if problem:
             raise ConfigError(f"{where_table}: {problem}", where=file)
     return out
+
+
+def parse_scalar(text: str) -> Any:
+    """A command-line value: int, float, true/false, or the text itself."""
+    text = text.strip()
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    if text.lower() in ("true", "false"):
+        return text.lower() == "true"
+    return text

@@ -6,7 +6,6 @@ import json
 from pathlib import Path
 
 import h5py
-import pytest
 from typer.testing import CliRunner
 
 from hilbench.cli import app

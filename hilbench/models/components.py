@@ -17,7 +17,7 @@ thresholds are in units of the input range and weights in output units (um).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -225,17 +225,11 @@ class MPI(OperatorBase):
         return ["a2*v^2", "a1*v^3"]
 
 
-class PMPI(OperatorBase):
+class PMPI(MPI):
     name = "pmpi"
     summary = "polynomial-modified PI of 004: M-play operators with eta (eq. 5-7) + cubic polynomial"
     eta_fixed = None
     span_kind = "full-range"
-
-    def extra(self, s: Signals) -> list[np.ndarray]:
-        return [s.v**2, s.v**3]
-
-    def extra_names(self) -> list[str]:
-        return ["a2*v^2", "a1*v^3"]
 
 
 class PD(OperatorBase):
@@ -592,7 +586,6 @@ class RateDependence(Component):
                 mats.append(block.matrix * factor)
                 names += [f"{name}*f^{j}" for name in block.names]
         return Columns.of(np.hstack(mats), names)
-        return Columns.of(np.column_stack(cols), names)
 
 
 def _modulated_sum(hyst: list[Columns], weights: np.ndarray, skip_offset: bool) -> tuple[np.ndarray, int]:

@@ -18,6 +18,7 @@ from scipy import signal as sps
 
 from hilbench import __version__
 from hilbench.errors import UserError
+from hilbench.schema import parse_scalar
 from hilbench.models import kernels as MK
 from hilbench.models.components import (
     BASES,
@@ -39,16 +40,6 @@ class SpecError(UserError):
 
 
 _PART = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_\-]*)\s*(?:\((.*)\))?\s*$")
-
-
-def _parse_value(text: str) -> Any:
-    text = text.strip()
-    for conv in (int, float):
-        try:
-            return conv(text)
-        except ValueError:
-            pass
-    return text
 
 
 def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
@@ -77,7 +68,7 @@ def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
                 key, eq, value = item.partition("=")
                 if not eq:
                     raise SpecError(f"option {item!r} in {part.strip()!r}: expected key=value")
-                options[key.strip()] = _parse_value(value)
+                options[key.strip()] = parse_scalar(value)
         out.append((match.group(1).lower() if match.group(1).lower() in {**BASES, **EFFECTS} else match.group(1),
                     options))
     return out
