@@ -25,7 +25,7 @@ from hilbench.errors import UserError
 app = typer.Typer(
     name="hilbench",
     help="Hardware-in-the-loop bench for smart-material actuators: sweep simulated or real rigs, "
-    "record crash-safe HDF5, import measured data, plot loops.",
+    "record crash-safe HDF5, import measured data, plot loops, fit hysteresis models.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
