@@ -446,6 +446,62 @@ def _fit_report_lines(result: Any) -> list[str]:
     return lines
 
 
+@app.command()
+@user_errors
+def diagnose(
+    data: list[Path] = typer.Argument(..., metavar="DATA", help="Recording(s) (.h5); all runs are read, in order."),
+    model: str = typer.Option(..., "--model", "-m", metavar="SPEC|FIT.json",
+                              help="Model spec to fit (e.g. 'pi', 'linear') or a fitted model (.json)."),
+    add: Optional[str] = typer.Option(None, "--add", metavar="EFFECT",
+                                      help="Add this effect, refit, and show before and after."),
+    auto: bool = typer.Option(False, "--auto", help="Add the best significant effect while one remains."),
+    train: list[str] = typer.Option([], "--train", metavar="RUN", help="Run that trains entirely. Repeatable."),
+    test: list[str] = typer.Option([], "--test", metavar="RUN", help="Run that validates entirely. Repeatable."),
+    train_fraction: float = typer.Option(0.7, "--train-fraction", help="Without --train/--test: the part of every run that trains."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Compare a model with measurements: where it fails, which physical effect is missing.
+
+    Every effect the data can test is added in turn and refitted on the same split; an effect is
+    significant when it lowers the validation error by more than 10 %, agrees between training and
+    validation, passes a block-wise signed-rank test (p < 0.01) and the error is above the noise.
+    """
+    from hilbench.diagnosis import diagnose as run_diagnosis
+
+    result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
+                           train_fraction=train_fraction)
+    document = result.to_json()
+    if as_json:
+        _print_json(document)
+        return
+    for line in _diagnosis_lines(document):
+        typer.echo(line)
+
+
+def _diagnosis_lines(d: dict[str, Any]) -> list[str]:
+    """Human summary of a diagnosis document (the --json one)."""
+    val = d["metrics"]["validation"]
+    trn = d["metrics"]["train"]
+    lines = [f"model: {d['spec']}   rmse train {trn['rmse']:.4g}, validation {val['rmse']:.4g} "
+             f"(erms {val['erms_pct']:.3g} % of range)"]
+    lines.append("where the validation error is (share of the squared error):")
+    for entry in sorted(d["where"], key=lambda e: -e["share"])[:8]:
+        lines.append(f"  {entry['kind']:<18s} {str(entry['range']):<42s} {100 * entry['share']:6.1f} %")
+    lines.append("effects (best first):")
+    for e in d["effects"]:
+        mark = "significant" if e["significant"] else "not significant"
+        lines.append(f"  {e['effect']:<16s} {mark:<16s} expected gain {100 * e['expected_gain']:6.1f} %  {e['explanation']}")
+    if not d["effects"]:
+        lines.append("  none testable")
+    for u in d["untestable"]:
+        lines.append(f"  {u['effect']:<16s} untestable: {u['reason']}")
+    if d.get("steps"):
+        lines.append("step  spec                                   added             validation rmse")
+        for k, s in enumerate(d["steps"]):
+            lines.append(f"{k:>4d}  {s['spec']:<38s} {str(s['added'] or '-'):<17s} {s['validation']['rmse']:.4g}")
+    return lines
+
+
 def main() -> None:
     app()
 

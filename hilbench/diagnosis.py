@@ -1,0 +1,561 @@
+"""Where a fitted model fails and which effect of DESIGN.md is missing (``hilbench diagnose``).
+
+:func:`diagnose` fits a spec (or evaluates a saved model), then
+
+* splits the squared validation error ``e = model - measured`` (output unit, um) into shares by run,
+  time window, input range x direction (rising / falling / turning / hold), |input rate| and the
+  range of every auxiliary channel (``where``);
+* refits the spec with every effect it lacks and the data can test, on the same split, and calls an
+  effect significant when (a) validation rmse drops by more than 10 %, (b) training improves too and
+  the two relative gains agree (validation at least half of training's, training at least a quarter
+  of validation's: neither an artefact of more parameters nor chance extrapolation), (c) a
+  one-sided Wilcoxon signed-rank test on the per-block squared-error differences of ~20 contiguous
+  validation blocks gives p < 0.01, and (d) the current validation error is above the noise floor
+  (noise estimated from sample-to-sample residual differences);
+* explains each effect in one sentence from residual statistics (``evidence``), ranks them by the
+  measured fractional drop of validation rmse (``expected_gain``), and lists the effects the data
+  cannot test with the reason;
+* with ``add`` refits with that effect, with ``auto`` adds the best significant effect while one
+  remains (``steps``).
+
+Units: input in the command unit (V or A), errors in the output unit, rates in input units per s,
+times in s, gains as fractions.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from hilbench.errors import UserError
+from hilbench.fitting import FitResult, PathLike, _finite, fit, fit_or_evaluate
+from hilbench.models.model import split_spec
+
+#: thresholds of significance (see the module docstring)
+MIN_GAIN = 0.10
+P_MAX = 0.01
+N_BLOCKS = 20
+NOISE_FACTOR = 1.5
+#: effects tried, in DESIGN.md order; aux channels are added by name
+CANDIDATES = ("hysteresis", "asymmetry", "saturation", "rate-dependence", "dynamics", "creep", "delay")
+MEMORYLESS_BASES = ("linear",)
+
+
+@dataclass
+class Candidate:
+    effect: str
+    spec: str
+    significant: bool
+    expected_gain: float
+    explanation: str
+    evidence: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return {"effect": self.effect, "significant": self.significant, "expected_gain": self.expected_gain,
+                "explanation": self.explanation, "evidence": self.evidence}
+
+
+@dataclass
+class Diagnosis:
+    spec: str
+    result: FitResult
+    where: list[dict[str, Any]]
+    effects: list[Candidate]
+    untestable: list[dict[str, str]]
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    noise: float = float("nan")
+    rounds: list[Diagnosis] = field(default_factory=list)  # with add/auto: the diagnosis of every step
+
+    @property
+    def metrics(self) -> dict[str, dict[str, float]]:
+        return self.result.metrics
+
+    @property
+    def best(self) -> Candidate | None:
+        return self.effects[0] if self.effects else None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "spec": self.spec,
+            "metrics": {"train": self.metrics["train"], "validation": self.metrics["validation"]},
+            "where": self.where,
+            "effects": [c.to_json() for c in self.effects],
+            "untestable": self.untestable,
+        }
+        if self.steps:
+            out["steps"] = self.steps
+        return _finite(out)
+
+
+# -- helpers ------------------------------------------------------------------------------------
+
+
+def spec_with(spec: str, effect: str) -> str:
+    """``spec`` plus ``effect``; ``hysteresis`` turns a ``linear`` base into ``pi``."""
+    if effect == "hysteresis":
+        parts = [p.strip() for p in spec.split("+")]
+        if split_spec(spec)[0][0] != "linear":
+            raise UserError(f"'hysteresis' needs a linear base; {spec!r} already has memory")
+        return "+".join(["pi", *parts[1:]])
+    return f"{spec}+{effect}"
+
+
+def _names(spec: str) -> set[str]:
+    return {name for name, _ in split_spec(spec)}
+
+
+@dataclass
+class _Rows:
+    """Validation rows of every run, concatenated, with what the statistics need."""
+
+    e: np.ndarray  # model - measured
+    u: np.ndarray
+    du: np.ndarray  # input rate, input unit / s
+    y: np.ndarray  # measured
+    dy: np.ndarray
+    d2y: np.ndarray
+    since: np.ndarray  # time since the input last changed (s), inf-free
+    direction: np.ndarray  # "rising", "falling", "turning", "hold"
+    run: np.ndarray  # run index
+    t: np.ndarray  # time in the run (s)
+    aux: dict[str, np.ndarray]
+    keys: list[str]
+
+
+def _smooth(x: np.ndarray, k: int) -> np.ndarray:
+    if k <= 1 or x.size < k:
+        return x
+    return np.convolve(x, np.ones(k) / k, mode="same")
+
+
+def _run_signals(u: np.ndarray, fs: float, span: float) -> dict[str, np.ndarray]:
+    """Rate, direction and time since the last input change of one run (all rows)."""
+    n = u.size
+    du = np.gradient(u) * fs if n > 1 else np.zeros(n)
+    still = np.abs(np.diff(u, prepend=u[:1])) <= 1e-6 * max(span, 1e-12)
+    sign = np.sign(du)
+    sign[still] = 0.0
+    # forward-filled direction of motion, and reversals where it flips
+    filled = sign.copy()
+    last = 0.0
+    for i in range(n):
+        if filled[i] == 0.0:
+            filled[i] = last
+        else:
+            last = filled[i]
+    flips = np.flatnonzero((filled[1:] * filled[:-1]) < 0) + 1
+    direction = np.where(sign > 0, "rising", np.where(sign < 0, "falling", "hold")).astype(object)
+    if flips.size:
+        idx = np.arange(n)
+        pos = np.searchsorted(flips, idx)
+        near = np.full(n, np.inf)
+        for cand in (np.clip(pos - 1, 0, flips.size - 1), np.clip(pos, 0, flips.size - 1)):
+            f = flips[cand]
+            near_i = np.abs(idx - f) <= 5
+            near_u = np.abs(u - u[np.maximum(f - 1, 0)]) <= 0.02 * span
+            near = np.where(near_i | near_u, 0.0, near)
+        direction[(near == 0.0) & (sign != 0)] = "turning"
+    since = np.zeros(n)
+    count = 0.0
+    for i in range(n):
+        count = count + 1.0 if still[i] else 0.0
+        since[i] = count / fs
+    return {"du": du, "direction": direction, "since": since, "flips": flips, "still": still}
+
+
+def _rows(result: FitResult, rows: str = "validation") -> _Rows:
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("e", "u", "du", "y", "dy", "d2y", "since", "direction",
+                                                             "run", "t")}
+    aux: dict[str, list[np.ndarray]] = {}
+    span = max(float(np.ptp(np.concatenate([r.data.input for r in result.runs if len(r.data)]))), 1e-12)
+    common = None
+    for r in result.runs:
+        if len(r.data):
+            common = set(r.data.aux) if common is None else common & set(r.data.aux)
+    keys = []
+    for k, r in enumerate(result.runs):
+        m = (r.validation if rows == "validation" else r.validation | r.train) & np.isfinite(r.data.output)
+        if not m.any() or r.simulated is None or r.simulated.size == 0:
+            continue
+        fs = r.data.sample_rate_hz
+        sig = _run_signals(r.data.input, fs, span)
+        y = r.data.output
+        ys = _smooth(np.nan_to_num(y), max(int(fs / 200), 1))
+        dy = np.gradient(ys) * fs
+        d2y = np.gradient(_smooth(dy, max(int(fs / 200), 1))) * fs
+        parts["e"].append((r.simulated - y)[m])
+        parts["u"].append(r.data.input[m])
+        parts["du"].append(sig["du"][m])
+        parts["y"].append(y[m])
+        parts["dy"].append(dy[m])
+        parts["d2y"].append(d2y[m])
+        parts["since"].append(sig["since"][m])
+        parts["direction"].append(sig["direction"][m])
+        parts["run"].append(np.full(int(m.sum()), len(keys)))
+        parts["t"].append(np.arange(len(r.data))[m] / fs)
+        for c in common or ():
+            aux.setdefault(c, []).append(r.data.aux[c][m])
+        keys.append(r.key)
+    if not keys:
+        raise UserError("no validation rows: name runs with --test, or use a training fraction below 1")
+    cat = {k: np.concatenate(v) for k, v in parts.items()}
+    return _Rows(**cat, aux={c: np.concatenate(v) for c, v in aux.items()}, keys=keys)
+
+
+def noise_floor(e: np.ndarray, run: np.ndarray) -> float:
+    """Noise std from sample-to-sample differences of the residual (robust: MAD), output unit."""
+    d = np.concatenate([np.diff(e[run == k]) for k in np.unique(run)])
+    if d.size < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+
+
+# -- where the error is -------------------------------------------------------------------------
+
+
+def _shares(total: float, labels: list[tuple[str, Any]], masks: list[np.ndarray], e2: np.ndarray,
+            top: int) -> list[dict[str, Any]]:
+    out = []
+    for (kind, rng), m in zip(labels, masks):
+        if m.any():
+            out.append({"kind": kind, "range": rng, "share": float(e2[m].sum() / total),
+                        "fraction_of_rows": float(m.mean())})
+    out.sort(key=lambda d: -d["share"])
+    return out[:top]
+
+
+def _quantile_bins(x: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    edges = np.unique(np.quantile(x, np.linspace(0, 1, n + 1)))
+    if edges.size < 2:
+        edges = np.array([x.min(), x.max() + 1e-12])
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+    return edges, idx
+
+
+def where(rows: _Rows, top: int = 5) -> list[dict[str, Any]]:
+    """Shares of the summed squared validation error: top entries per kind, largest first.
+
+    Kinds: ``run`` (range = run name), ``time`` (range = [run, t0 s, t1 s], 10 windows per run),
+    ``input:<direction>`` (range = [lo, hi] input unit, quantile bins), ``rate`` (|input rate|
+    bins, input unit/s), ``aux:<channel>`` (channel bins). ``fraction_of_rows`` is each bin's share
+    of rows, so a share well above it marks where the model fails.
+    """
+    e2 = rows.e**2
+    total = float(e2.sum()) or 1.0
+    out: list[dict[str, Any]] = []
+    runs = np.unique(rows.run)
+    out += _shares(total, [("run", rows.keys[k]) for k in runs], [rows.run == k for k in runs], e2, top)
+    labels, masks = [], []
+    for k in runs:
+        idx = np.flatnonzero(rows.run == k)
+        for chunk in np.array_split(idx, min(10, idx.size)):
+            labels.append(("time", [rows.keys[k], float(rows.t[chunk[0]]), float(rows.t[chunk[-1]])]))
+            m = np.zeros(e2.size, bool)
+            m[chunk] = True
+            masks.append(m)
+    out += _shares(total, labels, masks, e2, top)
+    edges, idx = _quantile_bins(rows.u, 5)
+    labels, masks = [], []
+    for b in range(edges.size - 1):
+        for d in ("rising", "falling", "turning", "hold"):
+            labels.append((f"input:{d}", [float(edges[b]), float(edges[b + 1])]))
+            masks.append((idx == b) & (rows.direction == d))
+    out += _shares(total, labels, masks, e2, top)
+    rate = np.abs(rows.du)
+    edges, idx = _quantile_bins(rate, 5)
+    out += _shares(total, [("rate", [float(edges[b]), float(edges[b + 1])]) for b in range(edges.size - 1)],
+                   [idx == b for b in range(edges.size - 1)], e2, top)
+    for c, a in rows.aux.items():
+        ok = np.isfinite(a)
+        if not ok.any():
+            continue
+        edges, idx = _quantile_bins(np.where(ok, a, np.nanmean(a)), 5)
+        out += _shares(total, [(f"aux:{c}", [float(edges[b]), float(edges[b + 1])]) for b in range(edges.size - 1)],
+                       [(idx == b) & ok for b in range(edges.size - 1)], e2, top)
+    return out
+
+
+# -- what the data can test ---------------------------------------------------------------------
+
+
+def _excitation(result: FitResult) -> dict[str, Any]:
+    """Properties of the input over all rows that train or validate."""
+    us = [r.data.input for r in result.runs if len(r.data) and (r.train.any() or r.validation.any())]
+    span = max(float(np.ptp(np.concatenate(us))), 1e-12)
+    freqs, plateau_s, jumps = [], 0.0, 0
+    fs = result.runs[0].data.sample_rate_hz
+    for u in us:
+        sig = _run_signals(u, fs, span)
+        flips = sig["flips"]
+        if flips.size >= 2:
+            freqs += list(fs / (2.0 * np.diff(flips)))
+        # longest hold
+        plateau_s = max(plateau_s, float(sig["since"].max()) if u.size else 0.0)
+        jumps += int(np.count_nonzero(np.abs(np.diff(u)) > 0.05 * span))
+    f = np.asarray(freqs)
+    spread = float(np.percentile(f, 90) / max(np.percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
+    return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+            "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size)}
+
+
+def _aux_variation(a: np.ndarray) -> float:
+    a = a[np.isfinite(a)]
+    if a.size < 3:
+        return 0.0
+    d = np.diff(a)
+    noise = 1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)
+    return float(np.ptp(a) / max(noise, 1e-12 * max(np.abs(a).max(), 1.0)))
+
+
+def testable(spec: str, result: FitResult) -> tuple[list[str], list[dict[str, str]]]:
+    """Effects to try (not in ``spec``) and the untestable ones with the reason."""
+    have = _names(spec)
+    base = split_spec(spec)[0][0]
+    ex = _excitation(result)
+    multi = ex["frequency_spread"] >= 1.5
+    broadband = multi or ex["steps"] > 0
+    single = (f"single drive frequency ({ex['frequencies_hz'][0]:.3g}-{ex['frequencies_hz'][1]:.3g} Hz, "
+              f"spread {ex['frequency_spread']:.2f})" if ex["frequencies_hz"] else "no input reversals")
+    tries, untestable = [], []
+    for eff in CANDIDATES:
+        if eff in have:
+            continue
+        reason = None
+        if eff == "hysteresis" and base not in MEMORYLESS_BASES:
+            reason = f"the base {base!r} already has memory"
+        elif eff == "asymmetry" and base in ("mpi", "pmpi"):
+            reason = f"the base {base!r} already has the polynomial (asymmetric) terms"
+        elif eff == "saturation" and base == "fpmpi":
+            reason = "the base 'fpmpi' already has the fractional (saturating) terms"
+        elif eff == "rate-dependence" and not multi:
+            reason = f"{single}: rate-dependence cannot be separated from hysteresis"
+        elif eff in ("dynamics", "delay") and not broadband:
+            reason = f"{single} and no steps: a {eff} phase lag at one frequency looks like loop width"
+        elif eff == "creep" and ex["longest_hold_s"] < 0.2:
+            reason = (f"the input never holds still (longest hold {ex['longest_hold_s']:.3g} s): "
+                      "slow drift cannot be told from hysteresis")
+        if reason:
+            untestable.append({"effect": eff, "reason": reason})
+        else:
+            tries.append(eff)
+    channels = None
+    for r in result.runs:
+        if len(r.data):
+            channels = list(r.data.aux) if channels is None else [c for c in channels if c in r.data.aux]
+    for c in channels or []:
+        if c in have:
+            continue
+        a = np.concatenate([r.data.aux[c] for r in result.runs if len(r.data)])
+        ratio = _aux_variation(a)
+        if ratio < 20:
+            untestable.append({"effect": c, "reason": f"{c} barely varies (range {ratio:.3g}x its noise)"})
+        else:
+            tries.append(c)
+    return tries, untestable
+
+
+# -- evidence and explanations ------------------------------------------------------------------
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 3 or np.std(a[ok]) == 0 or np.std(b[ok]) == 0:
+        return 0.0
+    return float(np.corrcoef(a[ok], b[ok])[0, 1])
+
+
+def _explained(e: np.ndarray, cols: list[np.ndarray]) -> float:
+    """Fraction of the residual's variance a least-squares fit on ``cols`` (plus a constant) explains."""
+    A = np.column_stack([np.ones_like(e), *cols])
+    ok = np.all(np.isfinite(A), axis=1) & np.isfinite(e)
+    if ok.sum() <= A.shape[1] or np.var(e[ok]) == 0:
+        return 0.0
+    w, *_ = np.linalg.lstsq(A[ok], e[ok], rcond=None)
+    r = e[ok] - A[ok] @ w
+    return float(max(0.0, 1.0 - np.var(r) / np.var(e[ok])))
+
+
+def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
+    """One sentence from residual statistics, and the numbers behind it."""
+    e, u, e2 = rows.e, rows.u, rows.e**2
+    total = float(e2.sum()) or 1.0
+    span = max(float(np.ptp(u)), 1e-12)
+    if effect == "creep":
+        hold = rows.direction == "hold"
+        early = hold & (rows.since < 1.0)
+        late = hold & (rows.since >= 1.0)
+        # drift: residual changes along a hold; its size relative to the rms error
+        drift = []
+        for k in np.unique(rows.run):
+            m = hold & (rows.run == k)
+            idx = np.flatnonzero(m)
+            for seg in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+                if seg.size > 50:
+                    drift.append(abs(float(np.mean(e[seg[-20:]]) - np.mean(e[seg[:20]]))))
+        rms = math.sqrt(total / e.size)
+        ev = {"hold_share": float(e2[hold].sum() / total), "hold_rows": float(hold.mean()),
+              "drift_over_hold_um": float(np.mean(drift)) if drift else 0.0,
+              "drift_over_rms": float(np.mean(drift) / rms) if drift and rms > 0 else 0.0,
+              "first_second_vs_later_mse": float(np.mean(e2[early]) / max(np.mean(e2[late]), 1e-30))
+              if early.any() and late.any() else float("nan")}
+        return (f"the error drifts by {ev['drift_over_hold_um']:.3g} (output unit) while the input holds still "
+                f"({ev['drift_over_rms']:.2g}x the rms error) and decays after each step: creep"), ev
+    if effect == "rate-dependence":
+        rate = np.abs(rows.du)
+        moving = rate > 0
+        hi = moving & (rate >= np.percentile(rate[moving], 67)) if moving.any() else moving
+        lo = moving & (rate <= np.percentile(rate[moving], 33)) if moving.any() else moving
+        ratio = float(np.mean(e2[hi]) / max(np.mean(e2[lo]), 1e-30)) if hi.any() and lo.any() else float("nan")
+        ev = {"mse_fast_over_slow": ratio, "corr_e2_rate": _corr(e2, rate)}
+        return (f"the squared error is {ratio:.2g}x larger at the fastest third of input rates than at the slowest: "
+                "rate-dependence"), ev
+    if effect == "dynamics":
+        c2 = _corr(e, rows.d2y)
+        x = _explained(e, [rows.dy, rows.d2y])
+        ev = {"corr_e_d2y": c2, "explained_by_dy_d2y": x}
+        return (f"the error follows the output's derivatives ({100 * x:.2g} % of its variance, correlation "
+                f"with acceleration {c2:.2f}): a lag and ringing of linear dynamics"), ev
+    if effect == "delay":
+        c1 = _corr(e, rows.dy)
+        ev = {"corr_e_dy": c1, "explained_by_dy": _explained(e, [rows.dy])}
+        lag = -float(np.dot(e, rows.dy) / max(np.dot(rows.dy, rows.dy), 1e-30))
+        ev["equivalent_lag_s"] = lag
+        return (f"the error is proportional to the output's rate of change (correlation {c1:.2f}, "
+                f"as a lag of {1e3 * lag:.3g} ms): a time delay"), ev
+    if effect == "asymmetry":
+        v = (u - u.mean()) / (span / 2)
+        even = _explained(e, [v**2, v**4])
+        ev = {"explained_by_even_input": even, "corr_e_u2": _corr(e, v**2)}
+        return (f"{100 * even:.2g} % of the error's variance is an even function of the input: the loops are "
+                "not centrally symmetric (asymmetry)"), ev
+    if effect == "saturation":
+        a = np.abs(u - np.median(u))
+        outer = a >= np.percentile(a, 80)
+        share = float(e2[outer].sum() / total)
+        ev = {"outer_20pct_share": share, "explained_by_odd_input": _explained(e, [u, u**3])}
+        return (f"{100 * share:.2g} % of the squared error lies in the outer fifth of the input range: the loops "
+                "flatten at large drive (saturation)"), ev
+    if effect == "hysteresis":
+        s = np.where(rows.direction == "rising", 1.0, np.where(rows.direction == "falling", -1.0, 0.0))
+        x = _explained(e, [s])
+        ev = {"explained_by_direction": x, "corr_e_direction": _corr(e, s)}
+        return (f"the error's sign depends on the direction of motion ({100 * x:.2g} % of its variance): "
+                "rate-independent memory (hysteresis)"), ev
+    a = rows.aux.get(effect)
+    c = _corr(e, a) if a is not None else 0.0
+    ev = {"corr_e_channel": c, "explained_by_channel": _explained(e, [a, a * u]) if a is not None else 0.0}
+    return (f"the error follows the {effect} channel (correlation {c:.2f}, {100 * ev['explained_by_channel']:.2g} % "
+            f"of its variance with the input): dependence on {effect}"), ev
+
+
+# -- comparing fits -----------------------------------------------------------------------------
+
+
+def _validation_errors(result: FitResult) -> np.ndarray:
+    return np.concatenate([(r.simulated - r.data.output)[r.validation & np.isfinite(r.data.output)]
+                           for r in result.runs if r.validation.any() and r.simulated is not None
+                           and r.simulated.size])
+
+
+def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = N_BLOCKS) -> tuple[float, int, int]:
+    """One-sided Wilcoxon signed-rank p-value that the new squared error is lower, over contiguous
+    blocks; and how many blocks improved, of how many."""
+    blocks = [b for b in np.array_split(np.arange(e_old.size), min(n_blocks, e_old.size)) if b.size]
+    d = np.array([np.mean(e_old[b] ** 2) - np.mean(e_new[b] ** 2) for b in blocks])
+    if d.size < 5 or not np.any(d != 0):
+        return 1.0, int(np.sum(d > 0)), int(d.size)
+    p = float(stats.wilcoxon(d, alternative="greater", zero_method="zsplit").pvalue)
+    return p, int(np.sum(d > 0)), int(d.size)
+
+
+def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw: dict[str, Any]) -> Candidate:
+    spec = spec_with(base.spec, effect)
+    new = fit(paths, spec, **kw)
+    old_v, new_v = base.metrics["validation"]["rmse"], new.metrics["validation"]["rmse"]
+    old_t, new_t = base.metrics["train"]["rmse"], new.metrics["train"]["rmse"]
+    gain = 1.0 - new_v / old_v if old_v > 0 else 0.0
+    gain_t = 1.0 - new_t / old_t if old_t > 0 else 0.0
+    p, better, blocks = block_test(_validation_errors(base), _validation_errors(new))
+    above_noise = old_v > NOISE_FACTOR * noise
+    checks = {
+        "gain_over_10pct": gain > MIN_GAIN,
+        # a real effect is learned from training rows and holds on unseen rows: neither gain may be
+        # a small fraction of the other (a gain on validation only is chance extrapolation)
+        "train_and_validation_agree": gain_t > 0 and gain >= 0.5 * gain_t and gain_t >= 0.25 * gain,
+        "blocks_p_below_0.01": p < P_MAX,
+        "error_above_noise": above_noise,
+    }
+    sentence, evidence = explain(effect, rows)
+    evidence = {
+        "validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "train_gain": gain_t,
+        "p_value": p, "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks,
+        "spec": new.spec, **evidence,
+    }
+    return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence)
+
+
+def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
+    rows = _rows(base)
+    noise = noise_floor(rows.e, rows.run)
+    tries, untestable = testable(base.spec, base)
+    every = _rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
+    cands = [_try(paths, base, eff, every, noise, kw) for eff in tries]
+    cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
+    return Diagnosis(base.spec, base, where(rows), cands, untestable, noise=noise)
+
+
+def _step(result: FitResult, added: str | None) -> dict[str, Any]:
+    return {"spec": result.spec, "added": added, "validation": dict(result.metrics["validation"]),
+            "train": dict(result.metrics["train"])}
+
+
+def diagnose(
+    paths: PathLike | Sequence[PathLike],
+    spec_or_model_file: str,
+    *,
+    train: Sequence[str] | None = None,
+    test: Sequence[str] | None = None,
+    add: str | None = None,
+    auto: bool = False,
+    max_steps: int = 4,
+    train_fraction: float = 0.7,
+) -> Diagnosis:
+    """Fit (or load) the model, find where it fails and which effect is missing.
+
+    With ``add`` the effect is added and the model refitted; with ``auto`` the best significant
+    effect is added while one remains (at most ``max_steps`` additions). The returned diagnosis is
+    of the final model; ``steps`` lists every model tried in order (the first is the start).
+    A saved model is evaluated as is for ``metrics``; candidate effects are compared against its
+    spec refitted on the same split, so both sides of every comparison saw the same training rows.
+    """
+    kw = {"train": train, "test": test, "train_fraction": train_fraction}
+    start = fit_or_evaluate(paths, spec_or_model_file, **kw)
+    base = start if start.refitted else fit(paths, start.spec, **kw)
+    steps = [_step(start, None)]
+    if add is not None:
+        base = fit(paths, spec_with(base.spec, add), **kw)
+        steps.append(_step(base, add))
+    result = _diagnose_once(paths, base, kw)
+    rounds = [result]
+    if auto:
+        while len(steps) - 1 < max_steps and result.best is not None and result.best.significant:
+            best = result.best
+            base = fit(paths, best.spec, **kw)
+            steps.append(_step(base, best.effect))
+            result = _diagnose_once(paths, base, kw)
+            rounds.append(result)
+    result.rounds = rounds
+    if add is None and not auto and not start.refitted:
+        result.result = start  # report the saved model's own metrics
+    if add is not None or auto:
+        result.steps = steps
+    return result
+
+
+__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "block_test", "diagnose", "explain", "noise_floor", "spec_with",
+           "testable", "where"]

@@ -1,0 +1,227 @@
+"""`hilbench.diagnosis`: where a model fails and which effect is missing, on simulated plants with a
+hidden effect (one each, none, and two), started from a model without it."""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilbench.config import load_rig
+from hilbench.diagnosis import block_test, diagnose, noise_floor, spec_with
+from hilbench.recording import RecordingWriter
+from hilbench.sim.plant import Plant
+from tests.conftest import MINIMAL_RIG
+
+FS = 1000.0
+
+CREEP = """
+[plant.creep]
+gains = [0.1]
+time_constants_s = [0.5]
+"""
+ASYMMETRY = """
+[plant.asymmetry]
+coefficients = [0.0, 0.0, 0.05, 0.01]
+"""
+TEMPERATURE = """
+[[sensors]]
+channel = "temperature"
+unit = "degC"
+driver = "sim"
+noise_std = 0.01
+
+[plant.temperature]
+reference_degC = 25.0
+gain_per_degC = 0.02
+strain_um_per_degC = 0.5
+trajectory = { kind = "ramp", start = 25.0, end = 35.0, duration_s = 8.0 }
+"""
+
+
+def excitation(seed: int) -> np.ndarray:
+    """8 s: steps held 1 s between 1 Hz and 3 Hz sines, so both halves of the split see holds, steps
+    and two drive frequencies."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(FS)) / FS
+    parts = []
+    for k in range(2):
+        parts += [np.full(int(FS), level) for level in rng.uniform(-6, 6, 2)]
+        parts.append(5.0 * np.sin(2 * np.pi * 1.0 * t))
+        parts.append(4.0 * np.sin(2 * np.pi * 3.0 * t))
+    return np.concatenate(parts)
+
+
+def make_recording(folder: Path, extra: str, name: str) -> Path:
+    """Two runs of :func:`excitation` on MINIMAL_RIG plus ``extra`` plant tables, each from rest."""
+    rig = folder / f"{name}.toml"
+    rig.write_text(textwrap.dedent(MINIMAL_RIG) + "\n" + textwrap.dedent(extra), encoding="utf-8")
+    plant = Plant.from_rig(load_rig(rig))
+    out = folder / f"{name}.h5"
+    writer = RecordingWriter(out)
+    units = {"time": "s", "input": "V", "output": "um", "temperature": "degC"}
+    for seed in (0, 1):
+        u = excitation(seed)
+        plant.reset()
+        sim = plant.simulate(u)
+        data = {"time": np.arange(u.size) / FS, "input": u, "output": sim.output, **sim.aux}
+        writer.write_run(f"run{seed}", data, units, experiment="test", excitation="{}", sample_rate_hz=FS)
+    return out
+
+
+CASES = {
+    "creep": (CREEP, "pi", ["creep"]),
+    "temperature": (TEMPERATURE, "pi", ["temperature"]),
+    "asymmetry": (ASYMMETRY, "pi", ["asymmetry"]),
+    "hysteresis": ("", "linear", ["hysteresis"]),
+    "creep+asymmetry": (CREEP + ASYMMETRY, "pi", ["creep", "asymmetry"]),
+}
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("diag")
+
+
+@pytest.fixture(scope="module")
+def auto_results(folder):
+    """diagnose(..., auto=True) per case, computed once."""
+    cache: dict[str, object] = {}
+
+    def get(case: str):
+        if case not in cache:
+            extra, spec, _ = CASES.get(case, ("", "pi", []))
+            cache[case] = diagnose(make_recording(folder, extra, case.replace("+", "_")), spec, auto=True)
+        return cache[case]
+
+    return get
+
+
+@pytest.mark.parametrize("case", ["creep", "temperature", "asymmetry", "hysteresis"])
+def test_hidden_effect_ranked_first_and_auto_adds_it(case, auto_results):
+    d = auto_results(case)
+    first = d.rounds[0]
+    hidden = CASES[case][2][0]
+    assert first.effects[0].effect == hidden, [(c.effect, c.expected_gain, c.significant) for c in first.effects]
+    best = first.effects[0]
+    assert best.significant and best.expected_gain > 0.5 and best.evidence["p_value"] < 0.01
+    assert best.explanation.endswith(hidden) or hidden in best.explanation
+    added = [s["added"] for s in d.steps[1:]]
+    assert hidden in added
+    before, after = d.steps[0]["validation"]["rmse"], d.steps[-1]["validation"]["rmse"]
+    assert before >= 3.0 * after, (before, after)
+    # the final model has nothing significant left
+    assert not any(c.significant for c in d.effects)
+
+
+def test_clean_case_reports_nothing_significant(auto_results):
+    d = auto_results("clean")
+    assert d.effects and not any(c.significant for c in d.effects)
+    assert len(d.steps) == 1 and d.steps[0]["added"] is None
+    assert d.metrics["validation"]["rmse"] < 2.0 * d.noise
+
+
+def test_two_hidden_effects(auto_results):
+    d = auto_results("creep+asymmetry")
+    first = d.rounds[0]
+    assert first.effects[0].effect in ("creep", "asymmetry") and first.effects[0].significant
+    added = [s["added"] for s in d.steps[1:]]
+    assert {"creep", "asymmetry"} <= set(added), added
+    assert d.steps[0]["validation"]["rmse"] >= 3.0 * d.steps[-1]["validation"]["rmse"]
+
+
+def test_json_document_and_untestable(auto_results):
+    d = auto_results("temperature")
+    doc = json.loads(json.dumps(d.to_json(), allow_nan=False))
+    assert set(doc) == {"spec", "metrics", "where", "effects", "untestable", "steps"}
+    assert set(doc["metrics"]) == {"train", "validation"}
+    assert doc["steps"][0]["spec"] == "pi" and doc["steps"][0]["added"] is None
+    assert {"kind", "range", "share"} <= set(doc["where"][0])
+    kinds = {w["kind"].split(":")[0] for w in doc["where"]}
+    assert {"run", "time", "input", "rate"} <= kinds
+    for e in doc["effects"]:
+        assert {"effect", "significant", "expected_gain", "explanation", "evidence"} <= set(e)
+    gains = [e["expected_gain"] for e in doc["effects"] if e["significant"]]
+    assert gains == sorted(gains, reverse=True)
+    # the first round saw the missing temperature effect through the channel's correlation
+    ev = d.rounds[0].effects[0].evidence
+    assert abs(ev["corr_e_channel"]) > 0.3
+    assert {u["effect"] for u in doc["untestable"]} >= {"hysteresis"}
+
+
+def test_untestable_single_frequency_and_no_holds(folder):
+    rig = folder / "sine.toml"
+    rig.write_text(textwrap.dedent(MINIMAL_RIG), encoding="utf-8")
+    plant = Plant.from_rig(load_rig(rig))
+    u = 5.0 * np.sin(2 * np.pi * 2.0 * np.arange(3000) / FS)
+    sim = plant.simulate(u)
+    out = folder / "sine.h5"
+    RecordingWriter(out).write_run("sine", {"time": np.arange(u.size) / FS, "input": u, "output": sim.output},
+                                   {"time": "s", "input": "V", "output": "um"}, experiment="t", excitation="{}",
+                                   sample_rate_hz=FS)
+    d = diagnose(out, "pi")
+    reasons = {u["effect"]: u["reason"] for u in d.to_json()["untestable"]}
+    assert "single drive frequency" in reasons["rate-dependence"]
+    assert "cannot be separated from hysteresis" in reasons["rate-dependence"]
+    assert "never holds still" in reasons["creep"]
+    assert "dynamics" in reasons and "delay" in reasons
+    assert "steps" not in d.to_json()
+
+
+def test_add_shows_before_and_after(folder, auto_results):
+    auto_results("creep")  # writes creep.h5
+    d = diagnose(folder / "creep.h5", "pi", add="creep")
+    assert [s["spec"] for s in d.steps] == ["pi", "pi+creep"]
+    assert d.steps[1]["validation"]["rmse"] < d.steps[0]["validation"]["rmse"] / 3
+    assert d.spec == "pi+creep"
+
+
+def test_helpers():
+    assert spec_with("linear+creep", "hysteresis") == "pi+creep"
+    assert spec_with("pi", "temperature") == "pi+temperature"
+    rng = np.random.default_rng(0)
+    e = rng.normal(0, 0.5, 4000)
+    assert abs(noise_floor(e, np.zeros(4000, int)) - 0.5) < 0.05
+    p, _, _ = block_test(e, e + rng.normal(0, 0.01, 4000))
+    assert p > 0.01  # noise alone does not pass
+    p, better, n = block_test(e, 0.5 * e)
+    assert p < 0.01 and better == n
+
+
+def test_saved_model_file(folder, auto_results, tmp_path):
+    from hilbench.fitting import fit
+
+    auto_results("asymmetry")  # writes asymmetry.h5
+    path = folder / "asymmetry.h5"
+    saved = fit(path, "pi").save(tmp_path / "fit.json")
+    d = diagnose(path, str(saved))
+    assert d.spec == "pi" and d.result.loaded_from == str(saved)
+    assert d.effects[0].effect == "asymmetry" and d.effects[0].significant
+
+
+def test_cli_diagnose_json_and_text(tmp_path):
+    """`hilbench diagnose` prints one JSON document with the issue's keys, and a readable summary."""
+    import json as _json
+
+    from typer.testing import CliRunner
+
+    from hilbench.cli import app
+
+    runner = CliRunner()
+    out = tmp_path / "d.h5"
+    made = runner.invoke(app, ["sweep", "piezo-pmpi", "-e", "sine:amplitude=5,offset=5,phase_deg=-90,frequency_hz=1,cycles=4",
+                               "-o", str(out), "-q", "--json"])
+    assert made.exit_code == 0, made.output
+    result = runner.invoke(app, ["diagnose", str(out), "--model", "linear", "--auto", "--json"])
+    assert result.exit_code == 0, result.output
+    doc = _json.loads(result.stdout)
+    assert set(doc) >= {"spec", "metrics", "where", "effects", "untestable", "steps"}
+    assert doc["steps"][0]["added"] is None and doc["steps"][1]["added"] == "hysteresis"
+    assert doc["steps"][-1]["validation"]["rmse"] < doc["steps"][0]["validation"]["rmse"] / 3
+    text = runner.invoke(app, ["diagnose", str(out), "--model", "linear"])
+    assert text.exit_code == 0 and "hysteresis" in text.stdout and "significant" in text.stdout
+    bad = runner.invoke(app, ["diagnose", str(out), "--model", "pi", "--add", "wobble"])
+    assert bad.exit_code == 2 and "wobble" in bad.stderr and "effects:" in bad.stderr
