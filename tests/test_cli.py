@@ -150,7 +150,13 @@ def test_import_and_plot_real_data(tmp_path):
 
 
 def test_demo(tmp_path):
+    """The whole loop: sweep, fit, diagnose, add the hidden effects, falling-error table, report."""
     doc = run_ok("demo", "--output-dir", str(tmp_path), "-q")
-    assert doc["status"] == "complete" and len(doc["runs"]) == 9
+    assert doc["status"] == "complete" and len(doc["runs"]) == 4
     assert Path(doc["png"]).stat().st_size > 20_000
     assert all(r["status"] == "complete" for r in doc["runs"])
+    steps = doc["diagnosis"]["steps"]
+    added = {s["added"] for s in steps[1:]}
+    assert steps[0]["spec"] == "pi" and added == {"asymmetry", "temperature"}  # the rig's hidden effects
+    assert steps[-1]["validation"]["rmse"] < steps[0]["validation"]["rmse"] / 10
+    assert Path(doc["report"]).read_text().startswith("<!DOCTYPE html>")
