@@ -41,6 +41,11 @@ MIN_GAIN = 0.10
 P_MAX = 0.01
 N_BLOCKS = 20
 NOISE_FACTOR = 1.5
+#: creep is significant only if the residual drifts along holds by this fraction of its rms (after
+#: the first CREEP_SETTLE_S s of each hold): the physical signature, which a refit alone can fake
+#: (the creep low-pass also buys phase lag on delay or dynamics data)
+CREEP_MIN_DRIFT = 0.2
+CREEP_SETTLE_S = 0.1
 #: effects tried, in DESIGN.md order; aux channels are added by name
 CANDIDATES = ("hysteresis", "asymmetry", "saturation", "rate-dependence", "dynamics", "creep", "delay")
 MEMORYLESS_BASES = ("linear",)
@@ -395,6 +400,9 @@ def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
             m = hold & (rows.run == k)
             idx = np.flatnonzero(m)
             for seg in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+                # skip the first CREEP_SETTLE_S of a hold: a delay or a resonance settles there, while
+                # creep (time constants of tenths of seconds and more) keeps drifting after it
+                seg = seg[rows.since[seg] >= CREEP_SETTLE_S]
                 if seg.size > 50:
                     drift.append(abs(float(np.mean(e[seg[-20:]]) - np.mean(e[seg[:20]]))))
         rms = math.sqrt(total / e.size)
@@ -473,9 +481,24 @@ def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = N_BLOCKS) -
     return p, int(np.sum(d > 0)), int(d.size)
 
 
+def _variants(spec: str, effect: str) -> list[str]:
+    """The specs a candidate effect is tried as. Rate-dependence in both forms of 003: fixed
+    velocity damping (a rate normalised by one reference rate) and the frequency polynomials
+    (normalised by each half cycle's 2 pi f A); which describes the plant is not known beforehand,
+    and the frequency form cannot express damping whose strength depends on the amplitude."""
+    if effect == "rate-dependence":
+        return [spec_with(spec, "rate-dependence(form=damping)"), spec_with(spec, "rate-dependence(form=frequency)")]
+    return [spec_with(spec, effect)]
+
+
 def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw: dict[str, Any]) -> Candidate:
-    spec = spec_with(base.spec, effect)
-    new = fit(paths, spec, **kw)
+    new = None
+    for spec in _variants(base.spec, effect):
+        fitted = fit(paths, spec, **kw)
+        # choose among the forms on training rows only, so the validation comparison stays fair
+        if new is None or fitted.metrics["train"]["rmse"] < new.metrics["train"]["rmse"]:
+            new = fitted
+    assert new is not None
     old_v, new_v = base.metrics["validation"]["rmse"], new.metrics["validation"]["rmse"]
     old_t, new_t = base.metrics["train"]["rmse"], new.metrics["train"]["rmse"]
     gain = 1.0 - new_v / old_v if old_v > 0 else 0.0
@@ -491,6 +514,8 @@ def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw
         "error_above_noise": above_noise,
     }
     sentence, evidence = explain(effect, rows)
+    if effect == "creep":
+        checks["drift_on_holds"] = evidence["drift_over_rms"] >= CREEP_MIN_DRIFT
     evidence = {
         "validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "train_gain": gain_t,
         "p_value": p, "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks,

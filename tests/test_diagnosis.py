@@ -42,6 +42,54 @@ trajectory = { kind = "ramp", start = 25.0, end = 35.0, duration_s = 8.0 }
 """
 
 
+RATE = """
+[plant.rate_dependence]
+mode = "damping"
+coefficient = 0.4
+exponent = 1.0
+reference_rate = 50.0
+"""
+DYNAMICS = """
+[plant.dynamics]
+kind = "second-order"
+natural_frequency_hz = 30.0
+zeta = 0.15
+"""
+DELAY = """
+[plant.delay]
+seconds = 0.004
+"""
+SATURATION = """
+[plant.saturation]
+level = 7.0
+"""
+LOAD = """
+[[sensors]]
+channel = "load"
+unit = "N"
+driver = "sim"
+noise_std = 0.05
+
+[plant.load]
+gain_per_N = 0.004
+compliance_um_per_N = 0.02
+trajectory = { kind = "steps", levels = [0.0, 40.0, 15.0, 60.0, 25.0], hold_s = 1.6 }
+"""
+
+
+def sines(seed: int, freqs: tuple[float, ...], steps: bool = False) -> np.ndarray:
+    """Whole cycles of sines at ``freqs`` (shuffled, amplitudes 3-6 V, at least 1 s each), each
+    followed by a 0.5 s hold at a random level when ``steps``."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for f in rng.permutation(np.asarray(freqs, float)):
+        t = np.arange(int(FS * max(1.0, 1.0 / f))) / FS
+        parts.append(rng.uniform(3, 6) * np.sin(2 * np.pi * f * t))
+        if steps:
+            parts.append(np.full(int(0.5 * FS), rng.uniform(-6, 6)))
+    return np.concatenate(parts)
+
+
 def excitation(seed: int) -> np.ndarray:
     """8 s: steps held 1 s between 1 Hz and 3 Hz sines, so both halves of the split see holds, steps
     and two drive frequencies."""
@@ -55,16 +103,16 @@ def excitation(seed: int) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def make_recording(folder: Path, extra: str, name: str) -> Path:
+def make_recording(folder: Path, extra: str, name: str, excite=excitation) -> Path:
     """Two runs of :func:`excitation` on MINIMAL_RIG plus ``extra`` plant tables, each from rest."""
     rig = folder / f"{name}.toml"
     rig.write_text(textwrap.dedent(MINIMAL_RIG) + "\n" + textwrap.dedent(extra), encoding="utf-8")
     plant = Plant.from_rig(load_rig(rig))
     out = folder / f"{name}.h5"
     writer = RecordingWriter(out)
-    units = {"time": "s", "input": "V", "output": "um", "temperature": "degC"}
+    units = {"time": "s", "input": "V", "output": "um", "temperature": "degC", "load": "N"}
     for seed in (0, 1):
-        u = excitation(seed)
+        u = excite(seed)
         plant.reset()
         sim = plant.simulate(u)
         data = {"time": np.arange(u.size) / FS, "input": u, "output": sim.output, **sim.aux}
@@ -78,7 +126,30 @@ CASES = {
     "asymmetry": (ASYMMETRY, "pi", ["asymmetry"]),
     "hysteresis": ("", "linear", ["hysteresis"]),
     "creep+asymmetry": (CREEP + ASYMMETRY, "pi", ["creep", "asymmetry"]),
+    # velocity damping: smooth sines from 0.5 to 8 Hz, no steps (a step is an unbounded rate)
+    "rate-dependence": (RATE, "pi", ["rate-dependence"], lambda s: sines(s, (0.5, 1, 2, 4, 8))),
+    # a lightly damped 30 Hz resonance, rung by steps, at three drive frequencies
+    "dynamics": (DYNAMICS, "pi", ["dynamics"], lambda s: sines(s, (1, 3, 7), steps=True)),
+    # 4 ms of pure delay (4 samples)
+    "delay": (DELAY, "pi", ["delay"], lambda s: sines(s, (1, 3, 7), steps=True)),
+    # the output saturates at 7 um, below the ~11 um the hysteresis reaches at 6 V
+    "saturation": (SATURATION, "pi", ["saturation"], lambda s: sines(s, (0.5, 1, 2), steps=True)),
+    # load steps 0-60 N (4 %/10 N gain loss, 0.02 um/N compliance), with a load cell (0.05 N noise)
+    "load": (LOAD, "pi", ["load"], lambda s: sines(s, (0.5, 1, 2), steps=True)),
+    # second draws: other parameter values and other excitation seeds
+    "rate-dependence/2": (RATE.replace("1.0\n", "1.5\n").replace("50.0", "100.0"), "pi", ["rate-dependence"],
+                          lambda s: sines(s + 10, (0.5, 1, 2, 4, 8))),
+    "dynamics/2": (DYNAMICS.replace("30.0", "60.0").replace("0.15", "0.3"), "pi", ["dynamics"],
+                   lambda s: sines(s + 10, (1, 3, 7), steps=True)),
+    "delay/2": (DELAY.replace("0.004", "0.002"), "pi", ["delay"], lambda s: sines(s + 10, (1, 3, 7), steps=True)),
+    "saturation/2": (SATURATION.replace("7.0", "9.0"), "pi", ["saturation"],
+                     lambda s: sines(s + 10, (0.5, 1, 2), steps=True)),
+    "load/2": (LOAD.replace('{ kind = "steps", levels = [0.0, 40.0, 15.0, 60.0, 25.0], hold_s = 1.6 }',
+                            '{ kind = "sine", mean = 30.0, amplitude = 30.0, period_s = 3.0 }'), "pi", ["load"],
+               lambda s: sines(s + 10, (0.5, 1, 2), steps=True)),
 }
+NEW = ["rate-dependence", "dynamics", "delay", "saturation", "load"]
+NEW += [f"{c}/2" for c in NEW]
 
 
 @pytest.fixture(scope="module")
@@ -93,14 +164,15 @@ def auto_results(folder):
 
     def get(case: str):
         if case not in cache:
-            extra, spec, _ = CASES.get(case, ("", "pi", []))
-            cache[case] = diagnose(make_recording(folder, extra, case.replace("+", "_")), spec, auto=True)
+            extra, spec, _, *excite = CASES.get(case, ("", "pi", []))
+            path = make_recording(folder, extra, case.replace("+", "_").replace("/", "_"), *excite)
+            cache[case] = diagnose(path, spec, auto=True)
         return cache[case]
 
     return get
 
 
-@pytest.mark.parametrize("case", ["creep", "temperature", "asymmetry", "hysteresis"])
+@pytest.mark.parametrize("case", ["creep", "temperature", "asymmetry", "hysteresis", *NEW])
 def test_hidden_effect_ranked_first_and_auto_adds_it(case, auto_results):
     d = auto_results(case)
     first = d.rounds[0]
@@ -225,3 +297,14 @@ def test_cli_diagnose_json_and_text(tmp_path):
     assert text.exit_code == 0 and "hysteresis" in text.stdout and "significant" in text.stdout
     bad = runner.invoke(app, ["diagnose", str(out), "--model", "pi", "--add", "wobble"])
     assert bad.exit_code == 2 and "wobble" in bad.stderr and "effects:" in bad.stderr
+
+
+def test_creep_needs_drift_on_holds(auto_results):
+    """Delay and a resonance settle within the first tenth of a second of a hold: the creep low-pass
+    may still buy some phase lag, but without drift along the holds it is not significant."""
+    for case in ("delay", "dynamics"):
+        creep = [c for c in auto_results(case).rounds[0].effects if c.effect == "creep"]
+        assert creep and not creep[0].significant, creep[0].evidence
+        assert not creep[0].evidence["checks"]["drift_on_holds"]
+    creep = auto_results("creep").rounds[0].effects[0]
+    assert creep.evidence["checks"]["drift_on_holds"] and creep.evidence["drift_over_rms"] > 1.0
