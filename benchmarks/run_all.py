@@ -3,7 +3,7 @@
     python benchmarks/run_all.py                 # full size: about 10 minutes on 2 cores (the DE peers
                                                  # of bench_identification take most of it)
     python benchmarks/run_all.py --quick         # small sizes, under a minute: checks the scripts work
-    python benchmarks/run_all.py --only plant models   # a subset (plant, recording, models, identification)
+    python benchmarks/run_all.py --only plant models   # a subset (plant, recording, models, identification, diagnosis)
 
 Never fails on timing; see the ``meets_target`` entries of each benchmark.
 """
@@ -19,7 +19,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import _common as C  # noqa: E402
 
-BENCHMARKS = ("plant", "recording", "models", "identification")
+BENCHMARKS = ("plant", "recording", "models", "identification", "diagnosis")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> None:
     results: dict[str, dict] = {}
     with C.make_tempdir("hilbench-bench-") as work:
         C.use_private_numba_cache(work)  # before numba is imported by the benchmarks
+        import bench_diagnosis
         import bench_identification
         import bench_models
         import bench_plant
@@ -48,6 +49,7 @@ def main(argv: list[str] | None = None) -> None:
                 "identification": lambda: bench_identification.run(pi_samples=20_000, pmpi_samples=10_000,
                                                                    duhem_cycles=1, de_budget_ratio=2.0, repeats=1,
                                                                    workdir=work),
+                "diagnosis": lambda: bench_diagnosis.run(samples=20_000, workdir=work),
             }
         else:
             runs = {
@@ -55,6 +57,7 @@ def main(argv: list[str] | None = None) -> None:
                 "recording": lambda: bench_recording.run(workdir=work),
                 "models": lambda: bench_models.run(workdir=work),
                 "identification": lambda: bench_identification.run(workdir=work),
+                "diagnosis": lambda: bench_diagnosis.run(workdir=work),
             }
         for name in BENCHMARKS:
             if name in a.only:
@@ -94,6 +97,13 @@ def main(argv: list[str] | None = None) -> None:
             "pi_weight_fit_s": ident["summary"]["pi_fit_s"],
             "pmpi_fit_vs_de": ident["summary"]["pmpi"],
             "duhem_d_fit_vs_de": ident["summary"]["duhem_d"],
+        })
+    if "diagnosis" in results:
+        diag = results["diagnosis"]
+        summary.update({
+            "diagnose_all_candidates_s": diag["summary"]["diagnose_s"],
+            "diagnose_candidates": diag["summary"]["candidates"],
+            "diagnose_auto_s": diag["summary"]["auto_s"],
         })
     print(json.dumps({
         "environment": env,
