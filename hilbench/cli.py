@@ -497,6 +497,15 @@ def diagnose(
         typer.echo(line)
 
 
+def _range_text(value: Any) -> str:
+    """A where-range for people: numbers to 4 significant digits, a time window as ``run t0-t1 s``."""
+    if isinstance(value, list):
+        if len(value) == 3 and isinstance(value[0], str):
+            return f"{value[0]} {value[1]:.4g}-{value[2]:.4g} s"
+        return "[" + ", ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in value) + "]"
+    return str(value)
+
+
 def _diagnosis_lines(d: dict[str, Any]) -> list[str]:
     """Human summary of a diagnosis document (the --json one)."""
     val = d["metrics"]["validation"]
@@ -505,7 +514,8 @@ def _diagnosis_lines(d: dict[str, Any]) -> list[str]:
              f"(erms {val['erms_pct']:.3g} % of range)"]
     lines.append("where the validation error is (share of the squared error):")
     for entry in sorted(d["where"], key=lambda e: -e["share"])[:8]:
-        lines.append(f"  {entry['kind']:<18s} {str(entry['range']):<42s} {100 * entry['share']:6.1f} %")
+        lines.append(f"  {entry['kind']:<18s} {_range_text(entry['range']):<42s} {100 * entry['share']:6.1f} %"
+                     f"  (of {100 * entry.get('fraction_of_rows', float('nan')):.3g} % of rows)")
     lines.append("effects (best first):")
     for e in d["effects"]:
         mark = "significant" if e["significant"] else "not significant"

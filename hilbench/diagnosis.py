@@ -34,6 +34,8 @@ from scipy import stats
 
 from hilbench.errors import UserError
 from hilbench.fitting import FitResult, PathLike, _finite, fit, fit_or_evaluate
+from hilbench.input_motion import excitation_summary, motion
+from hilbench.rate_calibration import RatePlan, calibrated_spec, rate_plan
 from hilbench.models.model import split_spec
 
 #: thresholds of significance (see the module docstring)
@@ -59,6 +61,7 @@ class Candidate:
     expected_gain: float
     explanation: str
     evidence: dict[str, Any]
+    fitted: FitResult | None = field(default=None, repr=False)  # the refit, reused by --auto
 
     def to_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "significant": self.significant, "expected_gain": self.expected_gain,
@@ -138,41 +141,6 @@ def _smooth(x: np.ndarray, k: int) -> np.ndarray:
     return np.convolve(x, np.ones(k) / k, mode="same")
 
 
-def _run_signals(u: np.ndarray, fs: float, span: float) -> dict[str, np.ndarray]:
-    """Rate, direction and time since the last input change of one run (all rows)."""
-    n = u.size
-    du = np.gradient(u) * fs if n > 1 else np.zeros(n)
-    still = np.abs(np.diff(u, prepend=u[:1])) <= 1e-6 * max(span, 1e-12)
-    sign = np.sign(du)
-    sign[still] = 0.0
-    # forward-filled direction of motion, and reversals where it flips
-    filled = sign.copy()
-    last = 0.0
-    for i in range(n):
-        if filled[i] == 0.0:
-            filled[i] = last
-        else:
-            last = filled[i]
-    flips = np.flatnonzero((filled[1:] * filled[:-1]) < 0) + 1
-    direction = np.where(sign > 0, "rising", np.where(sign < 0, "falling", "hold")).astype(object)
-    if flips.size:
-        idx = np.arange(n)
-        pos = np.searchsorted(flips, idx)
-        near = np.full(n, np.inf)
-        for cand in (np.clip(pos - 1, 0, flips.size - 1), np.clip(pos, 0, flips.size - 1)):
-            f = flips[cand]
-            near_i = np.abs(idx - f) <= 5
-            near_u = np.abs(u - u[np.maximum(f - 1, 0)]) <= 0.02 * span
-            near = np.where(near_i | near_u, 0.0, near)
-        direction[(near == 0.0) & (sign != 0)] = "turning"
-    since = np.zeros(n)
-    count = 0.0
-    for i in range(n):
-        count = count + 1.0 if still[i] else 0.0
-        since[i] = count / fs
-    return {"du": du, "direction": direction, "since": since, "flips": flips, "still": still}
-
-
 def _rows(result: FitResult, rows: str = "validation") -> _Rows:
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("e", "u", "du", "y", "dy", "d2y", "since", "direction",
                                                              "run", "t")}
@@ -188,7 +156,7 @@ def _rows(result: FitResult, rows: str = "validation") -> _Rows:
         if not m.any() or r.simulated is None or r.simulated.size == 0:
             continue
         fs = r.data.sample_rate_hz
-        sig = _run_signals(r.data.input, fs, span)
+        sig = motion(r.data.input, fs, span)
         y = r.data.output
         ys = _smooth(np.nan_to_num(y), max(int(fs / 200), 1))
         dy = np.gradient(ys) * fs
@@ -288,24 +256,17 @@ def where(rows: _Rows, top: int = 5) -> list[dict[str, Any]]:
 # -- what the data can test ---------------------------------------------------------------------
 
 
-def _excitation(result: FitResult) -> dict[str, Any]:
-    """Properties of the input over all rows that train or validate."""
-    us = [r.data.input for r in result.runs if len(r.data) and (r.train.any() or r.validation.any())]
-    span = max(float(np.ptp(np.concatenate(us))), 1e-12)
-    freqs, plateau_s, jumps = [], 0.0, 0
-    fs = result.runs[0].data.sample_rate_hz
-    for u in us:
-        sig = _run_signals(u, fs, span)
-        flips = sig["flips"]
-        if flips.size >= 2:
-            freqs += list(fs / (2.0 * np.diff(flips)))
-        # longest hold
-        plateau_s = max(plateau_s, float(sig["since"].max()) if u.size else 0.0)
-        jumps += int(np.count_nonzero(np.abs(np.diff(u)) > 0.05 * span))
-    f = np.asarray(freqs)
-    spread = float(np.percentile(f, 90) / max(np.percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
-    return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
-            "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size)}
+def _excitation(result: FitResult, role: str = "all") -> dict[str, Any]:
+    """:func:`excitation_summary` of the rows that train (``role="train"``) or train or validate."""
+    active = [r for r in result.runs if len(r.data) and (r.train.any() or r.validation.any())]
+    span = max(float(np.ptp(np.concatenate([r.data.input for r in active]))), 1e-12)
+    us = [r.data.input[r.train if role == "train" else (r.train | r.validation)] for r in active]
+    return excitation_summary(us, active[0].data.sample_rate_hz, span)
+
+
+def _frequencies(ex: dict[str, Any]) -> str:
+    return (f"{ex['frequencies_hz'][0]:.3g}-{ex['frequencies_hz'][1]:.3g} Hz, spread {ex['frequency_spread']:.2f}"
+            if ex["frequencies_hz"] else "no input reversals")
 
 
 def _aux_variation(a: np.ndarray) -> float:
@@ -317,16 +278,39 @@ def _aux_variation(a: np.ndarray) -> float:
     return float(np.ptp(a) / max(noise, 1e-12 * max(np.abs(a).max(), 1.0)))
 
 
-def testable(spec: str, result: FitResult) -> tuple[list[str], list[dict[str, str]]]:
-    """Effects to try (not in ``spec``) and the untestable ones with the reason."""
+@dataclass
+class Testability:
+    """What the diagnosis tries: effects refitted on the split as is, effects whose shape is
+    calibrated across drive rates (:mod:`hilbench.rate_calibration`), and the untestable ones."""
+
+    tries: list[str]
+    untestable: list[dict[str, str]]
+    plan: RatePlan | None = None  # for the effects in ``calibrated``
+    calibrated: list[str] = field(default_factory=list)
+
+
+def testable(spec: str, result: FitResult) -> Testability:
+    """Effects to try (not in ``spec``) and the untestable ones with the reason.
+
+    Rate effects are judged on the training rows, where their parameters are learned: several
+    drive frequencies there for rate-dependence, several frequencies or steps for dynamics and
+    delay. With one training rate, dynamics and delay are calibrated across the validation rates
+    when those allow it; rate-dependence, whose rate-weighted operator weights are linear
+    parameters a single rate cannot fix, is then untestable.
+    """
     have = _names(spec)
     base = split_spec(spec)[0][0]
     ex = _excitation(result)
+    ex_train = _excitation(result, "train")
     multi = ex["frequency_spread"] >= 1.5
+    multi_train = ex_train["frequency_spread"] >= 1.5
     broadband = multi or ex["steps"] > 0
-    single = (f"single drive frequency ({ex['frequencies_hz'][0]:.3g}-{ex['frequencies_hz'][1]:.3g} Hz, "
-              f"spread {ex['frequency_spread']:.2f})" if ex["frequencies_hz"] else "no input reversals")
-    tries, untestable = [], []
+    broadband_train = multi_train or ex_train["steps"] > 0
+    single = f"single drive frequency ({_frequencies(ex)})"
+    single_train = (f"the training rows hold a single drive frequency ({_frequencies(ex_train)}) while the "
+                    f"validation rows reach {_frequencies(ex)}")
+    plan, no_plan = (None, "") if broadband_train or not broadband else rate_plan(result)
+    out = Testability([], [], plan)
     for eff in CANDIDATES:
         if eff in have:
             continue
@@ -339,15 +323,23 @@ def testable(spec: str, result: FitResult) -> tuple[list[str], list[dict[str, st
             reason = "the base 'fpmpi' already has the fractional (saturating) terms"
         elif eff == "rate-dependence" and not multi:
             reason = f"{single}: rate-dependence cannot be separated from hysteresis"
+        elif eff == "rate-dependence" and not multi_train:
+            reason = (f"{single_train}: rate-dependence cannot be separated from hysteresis in training "
+                      "(train on two or more rates to test it)")
         elif eff in ("dynamics", "delay") and not broadband:
             reason = f"{single} and no steps: a {eff} phase lag at one frequency looks like loop width"
+        elif eff in ("dynamics", "delay") and not broadband_train:
+            if plan is None:
+                reason = f"{single_train} and no steps, and {no_plan}"
+            else:
+                out.calibrated.append(eff)
         elif eff == "creep" and ex["longest_hold_s"] < 0.2:
             reason = (f"the input never holds still (longest hold {ex['longest_hold_s']:.3g} s): "
                       "slow drift cannot be told from hysteresis")
         if reason:
-            untestable.append({"effect": eff, "reason": reason})
+            out.untestable.append({"effect": eff, "reason": reason})
         else:
-            tries.append(eff)
+            out.tries.append(eff)
     channels = None
     for r in result.runs:
         if len(r.data):
@@ -358,10 +350,10 @@ def testable(spec: str, result: FitResult) -> tuple[list[str], list[dict[str, st
         a = np.concatenate([r.data.aux[c] for r in result.runs if len(r.data)])
         ratio = _aux_variation(a)
         if ratio < 20:
-            untestable.append({"effect": c, "reason": f"{c} barely varies (range {ratio:.3g}x its noise)"})
+            out.untestable.append({"effect": c, "reason": f"{c} barely varies (range {ratio:.3g}x its noise)"})
         else:
-            tries.append(c)
-    return tries, untestable
+            out.tries.append(c)
+    return out
 
 
 # -- evidence and explanations ------------------------------------------------------------------
@@ -431,7 +423,9 @@ def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
     if effect == "delay":
         c1 = _corr(e, rows.dy)
         ev = {"corr_e_dy": c1, "explained_by_dy": _explained(e, [rows.dy])}
-        lag = -float(np.dot(e, rows.dy) / max(np.dot(rows.dy, rows.dy), 1e-30))
+        # measured y(t) = model(t - lag) gives e = model - y ~ lag * dy/dt: a positive lag means the
+        # measurement trails the model
+        lag = float(np.dot(e, rows.dy) / max(np.dot(rows.dy, rows.dy), 1e-30))
         ev["equivalent_lag_s"] = lag
         return (f"the error is proportional to the output's rate of change (correlation {c1:.2f}, "
                 f"as a lag of {1e3 * lag:.3g} ms): a time delay"), ev
@@ -464,10 +458,19 @@ def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
 # -- comparing fits -----------------------------------------------------------------------------
 
 
-def _validation_errors(result: FitResult) -> np.ndarray:
+def _validation_errors(result: FitResult, keys: Sequence[str] | None = None) -> np.ndarray:
+    """Model minus measured on the validation rows (of the runs ``keys``, default all), output unit."""
     return np.concatenate([(r.simulated - r.data.output)[r.validation & np.isfinite(r.data.output)]
                            for r in result.runs if r.validation.any() and r.simulated is not None
-                           and r.simulated.size])
+                           and r.simulated.size and (keys is None or r.key in keys)])
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+
+
+def _gain(old: float, new: float) -> float:
+    return 1.0 - new / old if old > 0 else 0.0
 
 
 def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = N_BLOCKS) -> tuple[float, int, int]:
@@ -491,7 +494,12 @@ def _variants(spec: str, effect: str) -> list[str]:
     return [spec_with(spec, effect)]
 
 
-def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw: dict[str, Any]) -> Candidate:
+def _fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:
+    """``base`` refitted with ``effect`` on the user's split; with a rate ``plan`` the effect's
+    shape is calibrated across drive rates first and fixed."""
+    if plan is not None:
+        spec, _ = calibrated_spec(paths, base.spec, effect, plan)
+        return fit(paths, spec, **kw)
     new = None
     for spec in _variants(base.spec, effect):
         fitted = fit(paths, spec, **kw)
@@ -499,39 +507,71 @@ def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw
         if new is None or fitted.metrics["train"]["rmse"] < new.metrics["train"]["rmse"]:
             new = fitted
     assert new is not None
+    return new
+
+
+def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw: dict[str, Any],
+         plan: RatePlan | None = None) -> Candidate:
+    """Refit with ``effect`` and judge it (module docstring). With a rate ``plan`` the gain is
+    measured on the confirming runs and must agree with the calibrating runs' instead of training's."""
+    new = _fit_effect(paths, base, effect, kw, plan)
     old_v, new_v = base.metrics["validation"]["rmse"], new.metrics["validation"]["rmse"]
     old_t, new_t = base.metrics["train"]["rmse"], new.metrics["train"]["rmse"]
-    gain = 1.0 - new_v / old_v if old_v > 0 else 0.0
-    gain_t = 1.0 - new_t / old_t if old_t > 0 else 0.0
-    p, better, blocks = block_test(_validation_errors(base), _validation_errors(new))
-    above_noise = old_v > NOISE_FACTOR * noise
+    gain_t = _gain(old_t, new_t)
+    extra: dict[str, Any] = {}
+    if plan is None:
+        gain, learned = _gain(old_v, new_v), gain_t
+        e_old, e_new = _validation_errors(base), _validation_errors(new)
+        agree = "train_and_validation_agree"
+    else:
+        e_old, e_new = _validation_errors(base, plan.confirm), _validation_errors(new, plan.confirm)
+        c_old, c_new = _rms(_validation_errors(base, plan.calibrate)), _rms(_validation_errors(new, plan.calibrate))
+        gain, learned = _gain(_rms(e_old), _rms(e_new)), _gain(c_old, c_new)
+        agree = "calibration_and_confirmation_agree"
+        extra = {"rate_calibration": plan.to_json(), "confirmation_rmse": [_rms(e_old), _rms(e_new)],
+                 "calibration_rmse": [c_old, c_new], "calibration_gain": learned}
+    p, better, blocks = block_test(e_old, e_new)
     checks = {
         "gain_over_10pct": gain > MIN_GAIN,
-        # a real effect is learned from training rows and holds on unseen rows: neither gain may be
-        # a small fraction of the other (a gain on validation only is chance extrapolation)
-        "train_and_validation_agree": gain_t > 0 and gain >= 0.5 * gain_t and gain_t >= 0.25 * gain,
+        # a real effect is learned from one set of rows and holds on unseen rows: neither gain may
+        # be a small fraction of the other (a gain on validation only is chance extrapolation)
+        agree: learned > 0 and gain >= 0.5 * learned and learned >= 0.25 * gain,
         "blocks_p_below_0.01": p < P_MAX,
-        "error_above_noise": above_noise,
+        "error_above_noise": _rms(e_old) > NOISE_FACTOR * noise,
     }
+    if plan is not None:
+        checks["training_not_worse"] = new_t <= old_t * (1.0 + 0.01)
     sentence, evidence = explain(effect, rows)
     if effect == "creep":
         checks["drift_on_holds"] = evidence["drift_over_rms"] >= CREEP_MIN_DRIFT
+    if plan is not None:
+        sentence += (f"; calibrated at {'/'.join(f'{f:.3g}' for f in plan.calibrate_hz)} Hz, it changes the error at "
+                     f"{'/'.join(f'{f:.3g}' for f in plan.confirm_hz)} Hz by {-100 * gain:+.2g} %")
     evidence = {
         "validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "train_gain": gain_t,
         "p_value": p, "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks,
-        "spec": new.spec, **evidence,
+        "spec": new.spec, **extra, **evidence,
     }
-    return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence)
+    return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence, fitted=new)
 
 
 def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
     rows = _rows(base)
     noise = noise_floor(rows.e, rows.run)
-    tries, untestable = testable(base.spec, base)
+    plan = testable(base.spec, base)
     every = _rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
-    cands = [_try(paths, base, eff, every, noise, kw) for eff in tries]
+    cands = [_try(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None)
+             for eff in plan.tries]
     cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
-    return Diagnosis(base.spec, base, where(rows), cands, untestable, noise=noise)
+    return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
+
+
+def _add(paths: Any, base: FitResult, effect: str, kw: dict[str, Any]) -> FitResult:
+    """``--add``: refit with ``effect``, calibrated across drive rates where the diagnosis would."""
+    plan = testable(base.spec, base)
+    if effect in plan.calibrated:
+        return _fit_effect(paths, base, effect, kw, plan.plan)
+    return fit(paths, spec_with(base.spec, effect), **kw)
 
 
 def _step(result: FitResult, added: str | None) -> dict[str, Any]:
@@ -563,14 +603,14 @@ def diagnose(
     base = start if start.refitted else fit(paths, start.spec, **kw)
     steps = [_step(start, None)]
     if add is not None:
-        base = fit(paths, spec_with(base.spec, add), **kw)
+        base = _add(paths, base, add, kw)
         steps.append(_step(base, add))
     result = _diagnose_once(paths, base, kw)
     rounds = [result]
     if auto:
         while len(steps) - 1 < max_steps and result.best is not None and result.best.significant:
             best = result.best
-            base = fit(paths, best.spec, **kw)
+            base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
             steps.append(_step(base, best.effect))
             result = _diagnose_once(paths, base, kw)
             rounds.append(result)
@@ -582,5 +622,5 @@ def diagnose(
     return result
 
 
-__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "block_test", "diagnose", "explain", "noise_floor", "spec_with",
+__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "Testability", "block_test", "diagnose", "explain", "noise_floor", "spec_with",
            "testable", "where"]

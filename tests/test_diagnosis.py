@@ -4,6 +4,7 @@ hidden effect (one each, none, and two), started from a model without it."""
 from __future__ import annotations
 
 import json
+import math
 import textwrap
 from pathlib import Path
 
@@ -308,3 +309,48 @@ def test_creep_needs_drift_on_holds(auto_results):
         assert not creep[0].evidence["checks"]["drift_on_holds"]
     creep = auto_results("creep").rounds[0].effects[0]
     assert creep.evidence["checks"]["drift_on_holds"] and creep.evidence["drift_over_rms"] > 1.0
+
+
+def _sine_runs(folder: Path, extra: str, name: str, runs: dict[str, float]) -> Path:
+    """One sine run per drive frequency (Hz), 5 V, whole cycles of at least 3 s, each from rest."""
+    rig = folder / f"{name}.toml"
+    rig.write_text(textwrap.dedent(MINIMAL_RIG) + "\n" + textwrap.dedent(extra), encoding="utf-8")
+    plant = Plant.from_rig(load_rig(rig))
+    out = folder / f"{name}.h5"
+    writer = RecordingWriter(out)
+    for label, f in runs.items():
+        u = 5.0 * np.sin(2 * np.pi * f * np.arange(int(FS * math.ceil(3.0 * f) / f)) / FS)
+        plant.reset()
+        sim = plant.simulate(u)
+        writer.write_run(label, {"time": np.arange(u.size) / FS, "input": u, "output": sim.output},
+                         {"time": "s", "input": "V", "output": "um"}, experiment="t", excitation="{}",
+                         sample_rate_hz=FS)
+    return out
+
+
+def test_delay_calibrated_across_validation_rates(folder):
+    """Trained at one drive rate, a delay looks like loop width; the validation runs at two other
+    rates calibrate it (the nearer) and confirm it (the farther)."""
+    path = _sine_runs(folder, DELAY, "delay-rates", {"slow": 1.0, "mid": 3.0, "fast": 9.0})
+    d = diagnose(path, "pi", train=["slow"], test=["mid", "fast"])
+    best = d.best
+    assert best is not None and best.effect == "delay" and best.significant, [
+        (c.effect, c.expected_gain, c.evidence["checks"]) for c in d.effects]
+    cal = best.evidence["rate_calibration"]
+    assert cal["calibrated_on"] == ["0002-mid"] and cal["confirmed_on"] == ["0003-fast"]
+    assert abs(cal["training_hz"] - 1.0) < 0.05 and abs(cal["confirm_hz"][0] - 9.0) < 0.3
+    assert abs(best.fitted.model.effect("delay").param("seconds") - 0.004) < 0.001
+    assert best.evidence["equivalent_lag_s"] > 0  # the measurement trails the model
+    before, after = best.evidence["confirmation_rmse"]
+    assert after < before / 3, (before, after)
+    reasons = {u["effect"]: u["reason"] for u in d.untestable}
+    assert "training rows hold a single drive frequency" in reasons["rate-dependence"]
+    # --add delay takes the same calibrated shape
+    added = diagnose(path, "pi", train=["slow"], test=["mid", "fast"], add="delay")
+    assert added.spec.startswith("pi+delay(seconds=") and added.steps[1]["validation"]["rmse"] < \
+        added.steps[0]["validation"]["rmse"] / 3
+    # one other rate only: nothing left to confirm on
+    one = diagnose(path, "pi", train=["slow"], test=["fast"])
+    reasons = {u["effect"]: u["reason"] for u in one.untestable}
+    assert "fewer than two other drive rates" in reasons["delay"]
+    assert "delay" not in [c.effect for c in one.effects]

@@ -1,0 +1,138 @@
+"""How the input moves: rate, direction, holds, reversals and drive frequencies of one run.
+
+Used by the diagnosis to locate errors (rising / falling / turning / hold), to decide what the data
+can test (several drive frequencies? steps? holds long enough for creep?) and to group runs by drive
+rate. A measured input is noisy, so "holding still" means staying inside a dead band set by the
+input's own noise (:func:`hold_band`), not bit-for-bit constancy.
+
+Units: input in the command unit (V or A), rates in input units per s, times in s, frequencies in Hz.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+#: a measured input holds still inside this many noise stds, capped at this fraction of its span
+HOLD_NOISE_SIGMAS = 5.0
+HOLD_MAX_SPAN = 0.01
+#: a jump larger than this fraction of the span within one sample counts as a step
+STEP_FRACTION = 0.05
+#: samples (or input fraction of the span) around a reversal that count as "turning"
+TURNING_SAMPLES = 5
+TURNING_SPAN = 0.02
+
+
+def input_noise(u: np.ndarray) -> float:
+    """Noise std of a measured input (command unit), from its fourth differences (robust: MAD).
+
+    Fourth differences cancel ramps and parabolas and are tiny on smooth drives (A (w dt)^4 for a
+    sine: 0.02 V for 90 V at 20 Hz sampled at 1 kHz), so a digital command gives ~0 and a measured
+    voltage its (white) sensor noise: the fourth difference of white noise has std sqrt(70) sigma."""
+    if u.size < 9:
+        return 0.0
+    d4 = np.diff(u, 4)
+    return float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / math.sqrt(70.0))
+
+
+@njit(cache=True)
+def _held(u: np.ndarray, band: float) -> np.ndarray:
+    """True where the input stays within ``band`` of the value it last moved to (a dead band)."""
+    out = np.zeros(u.shape[0], np.bool_)
+    held = u[0] if u.shape[0] else 0.0
+    for i in range(1, u.shape[0]):
+        if abs(u[i] - held) > band:
+            held = u[i]
+        else:
+            out[i] = True
+    return out
+
+
+def hold_band(u: np.ndarray, span: float) -> float:
+    """The dead band within which the input counts as holding still: HOLD_NOISE_SIGMAS input-noise
+    stds, at least 1e-6 and at most HOLD_MAX_SPAN of the input span (a noisy drive must not turn
+    into holds)."""
+    floor = 1e-6 * max(span, 1e-12)
+    return float(min(max(HOLD_NOISE_SIGMAS * input_noise(u), floor), max(HOLD_MAX_SPAN * span, floor)))
+
+
+def _forward_fill(x: np.ndarray) -> np.ndarray:
+    """Each zero replaced by the last nonzero value before it (zero before the first)."""
+    idx = np.where(x != 0.0, np.arange(x.size), 0)
+    np.maximum.accumulate(idx, out=idx)
+    return x[idx]
+
+
+def _run_length(still: np.ndarray) -> np.ndarray:
+    """How many samples in a row, up to and including each one, are still (0 where moving)."""
+    count = np.cumsum(still)
+    reset = np.where(~still, count, 0)
+    np.maximum.accumulate(reset, out=reset)
+    return count - reset
+
+
+def motion(u: np.ndarray, fs: float, span: float) -> dict[str, np.ndarray]:
+    """Rate ``du`` (input unit/s), ``direction`` (rising / falling / turning / hold), ``since`` (s
+    the input has held still), ``flips`` (reversal indices) and ``still`` of one run, all rows.
+
+    ``span`` is the input span the turning band is measured against (of all runs compared)."""
+    n = u.size
+    du = np.gradient(u) * fs if n > 1 else np.zeros(n)
+    still = _held(np.ascontiguousarray(u, dtype=np.float64), hold_band(u, span))
+    sign = np.sign(du)
+    sign[still] = 0.0
+    filled = _forward_fill(sign)
+    flips = np.flatnonzero((filled[1:] * filled[:-1]) < 0) + 1
+    direction = np.where(sign > 0, "rising", np.where(sign < 0, "falling", "hold")).astype(object)
+    if flips.size:
+        idx = np.arange(n)
+        pos = np.searchsorted(flips, idx)
+        near = np.zeros(n, bool)
+        for cand in (np.clip(pos - 1, 0, flips.size - 1), np.clip(pos, 0, flips.size - 1)):
+            f = flips[cand]
+            near |= (np.abs(idx - f) <= TURNING_SAMPLES) | (np.abs(u - u[np.maximum(f - 1, 0)]) <= TURNING_SPAN * span)
+        direction[near & (sign != 0)] = "turning"
+    # a sharp corner has zero central-difference rate without holding still
+    direction[(sign == 0) & ~still & (np.abs(np.diff(u, prepend=u[:1])) > 0)] = "turning"
+    since = _run_length(still) / fs
+    return {"du": du, "direction": direction, "since": since, "flips": flips, "still": still}
+
+
+def half_cycle_frequencies(flips: np.ndarray, fs: float) -> np.ndarray:
+    """Drive frequency (Hz) of every half cycle between consecutive reversals."""
+    return fs / (2.0 * np.diff(flips)) if flips.size >= 2 else np.zeros(0)
+
+
+def _time_percentile(f: np.ndarray, q: float) -> float:
+    """The ``q``-th percentile of half-cycle frequencies, each weighted by its duration 1/(2f)."""
+    order = np.argsort(f)
+    w = np.cumsum(1.0 / f[order])
+    return float(f[order][min(int(np.searchsorted(w, q / 100.0 * w[-1])), f.size - 1)])
+
+
+def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
+    """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
+    over time of the half-cycle frequencies), their range (Hz), the longest hold (s), the number of steps and
+    of reversals."""
+    us = [u for u in inputs if u.size]
+    if span is None:
+        span = max(float(np.ptp(np.concatenate(us))), 1e-12) if us else 1.0
+    freqs, plateau_s, jumps = [], 0.0, 0
+    for u in us:
+        m = motion(u, fs, span)
+        freqs.append(half_cycle_frequencies(m["flips"], fs))
+        plateau_s = max(plateau_s, float(m["since"].max()))
+        jumps += int(np.count_nonzero(np.abs(np.diff(u)) > STEP_FRACTION * span))
+    f = np.concatenate(freqs) if freqs else np.zeros(0)
+    # percentiles over time, not over half cycles: 3 s at 1 Hz weigh as much as 3 s at 9 Hz
+    spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
+    return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+            "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
+            "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size)}
+
+
+__all__ = ["excitation_summary", "half_cycle_frequencies", "hold_band", "input_noise", "motion"]
