@@ -48,6 +48,10 @@ NOISE_FACTOR = 1.5
 #: (the creep low-pass also buys phase lag on delay or dynamics data)
 CREEP_MIN_DRIFT = 0.2
 CREEP_SETTLE_S = 0.1
+#: a tie on validation error is broken by the residual's pattern when signatures differ this much
+SIGNATURE_MARGIN = 0.2
+#: an auxiliary channel is tried when its smoothed range exceeds this many noise stds
+AUX_MIN_VARIATION = 3.0
 #: effects tried, in DESIGN.md order; aux channels are added by name
 CANDIDATES = ("hysteresis", "asymmetry", "saturation", "rate-dependence", "dynamics", "creep", "delay")
 MEMORYLESS_BASES = ("linear",)
@@ -269,13 +273,30 @@ def _frequencies(ex: dict[str, Any]) -> str:
             if ex["frequencies_hz"] else "no input reversals")
 
 
-def _aux_variation(a: np.ndarray) -> float:
-    a = a[np.isfinite(a)]
-    if a.size < 3:
+def _aux_variation(runs: list[np.ndarray]) -> float:
+    """How far an auxiliary channel moves beyond its noise: the range of its moving average (1 % of
+    each run) over its sample-to-sample noise std. Pure noise gives well under 1 (the average
+    removes it); a 1.5 degC drift under 0.15 degC of noise gives 10."""
+    smooth, diffs, quantum = [], [], math.inf
+    for a in runs:
+        a = a[np.isfinite(a)]
+        if a.size < 3:
+            continue
+        k = max(1, a.size // 100)
+        smooth.append(np.convolve(a, np.ones(k) / k, mode="valid"))
+        d = np.diff(a)
+        diffs.append(d)
+        nz = np.abs(d[d != 0])
+        if nz.size:
+            quantum = min(quantum, float(nz.min()))
+    if not smooth:
         return 0.0
-    d = np.diff(a)
+    d = np.concatenate(diffs)
     noise = 1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)
-    return float(np.ptp(a) / max(noise, 1e-12 * max(np.abs(a).max(), 1.0)))
+    if math.isfinite(quantum):
+        noise = max(noise, quantum / math.sqrt(12.0))  # a quantised, mostly constant channel
+    s = np.concatenate(smooth)
+    return float(np.ptp(s) / max(noise, 1e-12 * max(float(np.abs(s).max()), 1.0)))
 
 
 @dataclass
@@ -347,10 +368,10 @@ def testable(spec: str, result: FitResult) -> Testability:
     for c in channels or []:
         if c in have:
             continue
-        a = np.concatenate([r.data.aux[c] for r in result.runs if len(r.data)])
-        ratio = _aux_variation(a)
-        if ratio < 20:
-            out.untestable.append({"effect": c, "reason": f"{c} barely varies (range {ratio:.3g}x its noise)"})
+        ratio = _aux_variation([r.data.aux[c] for r in result.runs if len(r.data)])
+        if ratio < AUX_MIN_VARIATION:
+            out.untestable.append({"effect": c, "reason": f"{c} barely varies (its smoothed range is {ratio:.3g}x "
+                                                          f"its noise, below {AUX_MIN_VARIATION:g})"})
         else:
             out.tries.append(c)
     return out
@@ -417,12 +438,13 @@ def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
     if effect == "dynamics":
         c2 = _corr(e, rows.d2y)
         x = _explained(e, [rows.dy, rows.d2y])
-        ev = {"corr_e_d2y": c2, "explained_by_dy_d2y": x}
+        ev = {"corr_e_d2y": c2, "explained_by_dy_d2y": x, "signature": x}
         return (f"the error follows the output's derivatives ({100 * x:.2g} % of its variance, correlation "
                 f"with acceleration {c2:.2f}): a lag and ringing of linear dynamics"), ev
     if effect == "delay":
         c1 = _corr(e, rows.dy)
         ev = {"corr_e_dy": c1, "explained_by_dy": _explained(e, [rows.dy])}
+        ev["signature"] = ev["explained_by_dy"]
         # measured y(t) = model(t - lag) gives e = model - y ~ lag * dy/dt: a positive lag means the
         # measurement trails the model
         lag = float(np.dot(e, rows.dy) / max(np.dot(rows.dy, rows.dy), 1e-30))
@@ -432,25 +454,27 @@ def explain(effect: str, rows: _Rows) -> tuple[str, dict[str, Any]]:
     if effect == "asymmetry":
         v = (u - u.mean()) / (span / 2)
         even = _explained(e, [v**2, v**4])
-        ev = {"explained_by_even_input": even, "corr_e_u2": _corr(e, v**2)}
+        ev = {"explained_by_even_input": even, "corr_e_u2": _corr(e, v**2), "signature": even}
         return (f"{100 * even:.2g} % of the error's variance is an even function of the input: the loops are "
                 "not centrally symmetric (asymmetry)"), ev
     if effect == "saturation":
         a = np.abs(u - np.median(u))
         outer = a >= np.percentile(a, 80)
         share = float(e2[outer].sum() / total)
-        ev = {"outer_20pct_share": share, "explained_by_odd_input": _explained(e, [u, u**3])}
+        odd = _explained(e, [u, u**3])
+        ev = {"outer_20pct_share": share, "explained_by_odd_input": odd, "signature": odd}
         return (f"{100 * share:.2g} % of the squared error lies in the outer fifth of the input range: the loops "
                 "flatten at large drive (saturation)"), ev
     if effect == "hysteresis":
         s = np.where(rows.direction == "rising", 1.0, np.where(rows.direction == "falling", -1.0, 0.0))
         x = _explained(e, [s])
-        ev = {"explained_by_direction": x, "corr_e_direction": _corr(e, s)}
+        ev = {"explained_by_direction": x, "corr_e_direction": _corr(e, s), "signature": x}
         return (f"the error's sign depends on the direction of motion ({100 * x:.2g} % of its variance): "
                 "rate-independent memory (hysteresis)"), ev
     a = rows.aux.get(effect)
     c = _corr(e, a) if a is not None else 0.0
     ev = {"corr_e_channel": c, "explained_by_channel": _explained(e, [a, a * u]) if a is not None else 0.0}
+    ev["signature"] = ev["explained_by_channel"]
     return (f"the error follows the {effect} channel (correlation {c:.2f}, {100 * ev['explained_by_channel']:.2g} % "
             f"of its variance with the input): dependence on {effect}"), ev
 
@@ -555,6 +579,41 @@ def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw
     return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence, fitted=new)
 
 
+def rank(cands: list[Candidate]) -> None:
+    """Order candidates in place: significant first, then by expected gain. When the best one's
+    validation error cannot be told from another significant candidate's (block test both ways,
+    p >= P_MAX) the two refits explain the data equally well, and the residual's own pattern
+    decides: the candidate whose ``signature`` (fraction of the error's variance its physical
+    pattern explains, e.g. even in the input for asymmetry, odd for saturation) is higher by at
+    least SIGNATURE_MARGIN goes first. A cubic term mimics saturation on a bipolar drive, so
+    without this asymmetry and saturation are a coin toss on saturating data."""
+    cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
+    if not cands or not cands[0].significant or cands[0].fitted is None:
+        return
+    top = cands[0]
+    e_top = _validation_errors(top.fitted)
+    best, best_p = top, 1.0
+    for c in cands[1:]:
+        if not c.significant or c.fitted is None or "rate_calibration" in c.evidence or "rate_calibration" in top.evidence:
+            continue
+        e_c = _validation_errors(c.fitted)
+        if e_c.size != e_top.size:
+            continue
+        p_top_better, _, _ = block_test(e_c, e_top)
+        if p_top_better < P_MAX:
+            continue  # the data tell them apart: gain order stands
+        if c.evidence.get("signature", -1.0) >= best.evidence.get("signature", -1.0) + SIGNATURE_MARGIN:
+            best, best_p = c, p_top_better
+    if best is not top:
+        cands.remove(best)
+        cands.insert(0, best)
+        best.evidence["ranked_by_signature"] = {
+            "over": top.effect, "p_value_of_difference": best_p,
+            "signatures": {top.effect: top.evidence.get("signature"), best.effect: best.evidence.get("signature")}}
+        best.explanation += (f"; its validation error cannot be told from {top.effect}'s (p {best_p:.2g}) and the "
+                             f"error's pattern fits {best.effect} better")
+
+
 def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
     rows = _rows(base)
     noise = noise_floor(rows.e, rows.run)
@@ -562,7 +621,7 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
     every = _rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
     cands = [_try(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None)
              for eff in plan.tries]
-    cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
+    rank(cands)
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
 
 
@@ -622,5 +681,5 @@ def diagnose(
     return result
 
 
-__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "Testability", "block_test", "diagnose", "explain", "noise_floor", "spec_with",
+__all__ = ["CANDIDATES", "Candidate", "Diagnosis", "Testability", "block_test", "rank", "diagnose", "explain", "noise_floor", "spec_with",
            "testable", "where"]

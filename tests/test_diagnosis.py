@@ -91,6 +91,20 @@ def sines(seed: int, freqs: tuple[float, ...], steps: bool = False) -> np.ndarra
     return np.concatenate(parts)
 
 
+def triangles(seed: int, freqs: tuple[float, ...], amplitudes: tuple[float, ...]) -> np.ndarray:
+    """A triangle staircase (one cycle per amplitude, V, shuffled) at each frequency, each followed
+    by a 0.4 s hold at a random level."""
+    rng = np.random.default_rng(300 + seed)
+    parts = []
+    for f in rng.permutation(np.asarray(freqs, float)):
+        n = int(round(FS / f))
+        phase = np.arange(n) / n
+        unit = np.where(phase < 0.25, 4 * phase, np.where(phase < 0.75, 2 - 4 * phase, 4 * phase - 4))
+        parts += [a * unit for a in rng.permutation(np.asarray(amplitudes, float))]
+        parts.append(np.full(int(0.4 * FS), rng.uniform(-3, 3)))
+    return np.concatenate(parts)
+
+
 def excitation(seed: int) -> np.ndarray:
     """8 s: steps held 1 s between 1 Hz and 3 Hz sines, so both halves of the split see holds, steps
     and two drive frequencies."""
@@ -107,7 +121,10 @@ def excitation(seed: int) -> np.ndarray:
 def make_recording(folder: Path, extra: str, name: str, excite=excitation) -> Path:
     """Two runs of :func:`excitation` on MINIMAL_RIG plus ``extra`` plant tables, each from rest."""
     rig = folder / f"{name}.toml"
-    rig.write_text(textwrap.dedent(MINIMAL_RIG) + "\n" + textwrap.dedent(extra), encoding="utf-8")
+    base = textwrap.dedent(MINIMAL_RIG)
+    if "[plant.hysteresis]" in extra:  # the case brings its own hysteresis (MINIMAL_RIG's is its last table)
+        base = base[: base.index("[plant.hysteresis]")]
+    rig.write_text(base + "\n" + textwrap.dedent(extra), encoding="utf-8")
     plant = Plant.from_rig(load_rig(rig))
     out = folder / f"{name}.h5"
     writer = RecordingWriter(out)
@@ -148,9 +165,23 @@ CASES = {
     "load/2": (LOAD.replace('{ kind = "steps", levels = [0.0, 40.0, 15.0, 60.0, 25.0], hold_s = 1.6 }',
                             '{ kind = "sine", mean = 30.0, amplitude = 30.0, period_s = 3.0 }'), "pi", ["load"],
                lambda s: sines(s + 10, (0.5, 1, 2), steps=True)),
+    # third draws, unlike the rest: a quartic asymmetry; saturation of an M-play hysteresis under
+    # triangles, where a cubic asymmetry fits as well and the residual's odd pattern decides
+    "asymmetry/3": ("""
+[plant.asymmetry]
+coefficients = [0.0, 0.0, -0.06, 0.0, 0.002]
+""", "pi", ["asymmetry"], lambda s: sines(s + 20, (0.5, 1, 2), steps=True)),
+    "saturation/3": (SATURATION.replace("7.0", "8.5") + """
+[plant.hysteresis]
+model = "m-play"
+linear_gain = 0.8
+thresholds = [0.4, 1.2, 2.5]
+weights = [0.5, 0.3, 0.2]
+eta = [0.6, 0.3, 0.0]
+""", "pi", ["saturation"], lambda s: triangles(s, (0.5, 1.5), (7.0, 5.0, 3.0))),
 }
 NEW = ["rate-dependence", "dynamics", "delay", "saturation", "load"]
-NEW += [f"{c}/2" for c in NEW]
+NEW += [f"{c}/2" for c in NEW] + ["asymmetry/3", "saturation/3"]
 
 
 @pytest.fixture(scope="module")
@@ -354,3 +385,26 @@ def test_delay_calibrated_across_validation_rates(folder):
     reasons = {u["effect"]: u["reason"] for u in one.untestable}
     assert "fewer than two other drive rates" in reasons["delay"]
     assert "delay" not in [c.effect for c in one.effects]
+
+
+def test_aux_variation_separates_drift_from_noise():
+    from hilbench.diagnosis import AUX_MIN_VARIATION, _aux_variation
+
+    rng = np.random.default_rng(3)
+    n = 20000
+    noise = [rng.normal(25.0, 0.15, n), rng.normal(25.0, 0.15, n)]
+    assert _aux_variation(noise) < 1.0 < AUX_MIN_VARIATION  # pure noise: nothing to test
+    drift = [25.0 + np.linspace(0, 1.5, n) + rng.normal(0, 0.15, n)]
+    assert _aux_variation(drift) > 2 * AUX_MIN_VARIATION  # 1.5 degC under 0.15 degC noise: ~10
+    steps = [np.repeat([20.0, 20.1, 20.0, 20.1], n // 4)]  # a quantised sensor flipping one step
+    assert _aux_variation(steps) < 5.0
+
+
+def test_tie_broken_by_the_residuals_pattern(auto_results):
+    """Saturating M-play data: a cubic asymmetry lowers the error as much as saturation does; the
+    residual is odd in the input, so saturation ranks first."""
+    first = auto_results("saturation/3").rounds[0]
+    sat = next(c for c in first.effects if c.effect == "saturation")
+    asym = next(c for c in first.effects if c.effect == "asymmetry")
+    assert sat.evidence["signature"] > asym.evidence["signature"] + 0.5  # odd vs even share of the error
+    assert first.effects[0].effect == "saturation"

@@ -22,6 +22,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from hilbench.errors import UserError
 from hilbench.models import kernels as MK
 
 
@@ -448,11 +449,24 @@ class BoucWen(Component):
 
 
 class Asymmetry(Component):
+    """Memoryless polynomial shaping v^2 ... v^order of the normalised input (002 cubic, 004 PMPI).
+
+    The default order 4 adds the quartic term a plant's polynomial often has (an even v^4 cannot
+    be mimicked by v^2 over a wide drive range)."""
+
     name = "asymmetry"
-    summary = "memoryless polynomial v^2, v^3 (002 cubic, 004 PMPI): loops not centrally symmetric"
+    summary = "memoryless polynomial v^2 ... v^order, order 4 by default (002 cubic, 004 PMPI): loops not centrally symmetric"
+    options_schema = {"order": int}
+
+    def _order(self) -> int:
+        order = int(self.options.get("order", 4))
+        if not 2 <= order <= 8:
+            raise UserError(f"asymmetry(order={order}): the order must be 2 to 8")
+        return order
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
-        return Columns.of(np.column_stack([s.v**2, s.v**3]), ["asym*v^2", "asym*v^3"], hysteresis=True)
+        powers = range(2, self._order() + 1)
+        return Columns.of(np.column_stack([s.v**k for k in powers]), [f"asym*v^{k}" for k in powers], hysteresis=True)
 
 
 class Saturation(Component):
@@ -468,8 +482,11 @@ class Saturation(Component):
         v = s.v
         sq = np.sign(v) * np.sqrt(np.abs(v))
         cb = np.sign(v) * np.abs(v) ** (1.0 / 3.0)
+        # non-negative weights: every column is compressive (concave for v > 0, convex below), so the
+        # effect can only flatten the response at large drive, never stiffen it (that would be an
+        # expansive polynomial: asymmetry); actuators here rise with their input (PI weights >= 0)
         return Columns.of(np.column_stack([np.tanh(v / self.param("s")), sq, cb]),
-                          ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"], hysteresis=True)
+                          ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"], lower=0.0, hysteresis=True)
 
 
 class Creep(Component):
@@ -537,6 +554,9 @@ class RateDependence(Component):
             a_est = np.empty_like(s.v)
             MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f_est, a_est)
             self.constants["f_ref"] = float(np.max(f_est)) or 1.0
+            # the largest training rate: beyond it the rate terms are not extrapolated (a step in
+            # validation data is an unbounded rate and would blow the polynomials up)
+            self.constants["vdot_max"] = float(np.max(np.abs(s.vdot))) or 1.0
             self.constants["waveform"] = str(self.options.get("waveform", "sine"))
             self.constants["harmonics"] = int(self.options.get("harmonics", 9))
 
@@ -553,13 +573,20 @@ class RateDependence(Component):
         lam = amp / amp.sum()
         return np.array([np.sum(lam * i**j) for j in range(order + 1)])
 
+    def limited(self, s: Signals, f: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The input rate (1/s) and normalised drive frequency, held within the training's range."""
+        vmax = float(self.constants.get("vdot_max", np.inf))
+        vdot = np.clip(s.vdot, -vmax, vmax)
+        fn = None if f is None else np.minimum(f / float(self.constants["f_ref"]), 1.0)
+        return vdot, fn
+
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         m = self.param("m")
         sgn = np.sign(s.vdot)
         hyst = [c for c in previous if c.hysteresis]
         if self.constants["form"] == "damping":
             q = float(self.constants["rate_ref"])
-            rate = np.abs(s.vdot) / q
+            rate = np.abs(self.limited(s)[0]) / q
             mats = [(sgn * rate**m)[:, None]]
             names = ["c*sgn(v')|v'/Q|^m"]
             for block in hyst:
@@ -570,10 +597,10 @@ class RateDependence(Component):
         f = np.empty_like(s.v)
         a = np.empty_like(s.v)
         MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
-        fn = f / float(self.constants["f_ref"])
+        vdot, fn = self.limited(s, f)
         q = 2.0 * np.pi * f * a
         with np.errstate(divide="ignore", invalid="ignore"):
-            md = np.where(q > 0, sgn * np.abs(s.vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
+            md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
         moments = self.harmonic_moments()
         order = int(self.constants["order"])
         mats, names = [], []
@@ -609,16 +636,16 @@ def _rate_contribution(self: RateDependence, s: Signals, state: dict[str, Any], 
     sgn = np.sign(s.vdot)
     hyst = [b for b in previous if b.hysteresis]
     if self.constants["form"] == "damping":
-        rate = np.abs(s.vdot) / float(self.constants["rate_ref"])
+        rate = np.abs(self.limited(s)[0]) / float(self.constants["rate_ref"])
         total, k = _modulated_sum(hyst, weights[1:], skip_offset=True)
         return weights[0] * sgn * rate**m + rate * total, 1 + k
     f = np.empty_like(s.v)
     a = np.empty_like(s.v)
     MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
-    fn = f / float(self.constants["f_ref"])
+    vdot, fn = self.limited(s, f)
     q = 2.0 * np.pi * f * a
     with np.errstate(divide="ignore", invalid="ignore"):
-        md = np.where(q > 0, sgn * np.abs(s.vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
+        md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
     moments = self.harmonic_moments()
     order = int(self.constants["order"])
     out = np.zeros_like(s.v)
