@@ -478,6 +478,8 @@ def diagnose(
     test: list[str] = typer.Option([], "--test", metavar="RUN", help="Run that validates entirely. Repeatable."),
     train_fraction: float = typer.Option(0.7, "--train-fraction", help="Without --train/--test: the part of every run that trains."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    report: Optional[Path] = typer.Option(None, "--report", metavar="DIR",
+                                          help="Write a self-contained HTML report (DIR/report.html)."),
 ) -> None:
     """Compare a model with measurements: where it fails, which physical effect is missing.
 
@@ -490,11 +492,20 @@ def diagnose(
     result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
                            train_fraction=train_fraction)
     document = result.to_json()
+    page = None
+    if report is not None:
+        from hilbench.diagnosis_report import write_report
+
+        page = write_report(result, report)
     if as_json:
         _print_json(document)
+        if page is not None:
+            typer.echo(f"report: {page}", err=True)
         return
     for line in _diagnosis_lines(document):
         typer.echo(line)
+    if page is not None:
+        typer.echo(f"report: {page}")
 
 
 def _range_text(value: Any) -> str:

@@ -591,6 +591,8 @@ def rank(cands: list[Candidate]) -> None:
     if not cands or not cands[0].significant or cands[0].fitted is None:
         return
     top = cands[0]
+    if "signature" not in top.evidence:
+        return  # no pattern to weigh against (rate-dependence, creep): gain order stands
     e_top = _validation_errors(top.fitted)
     best, best_p = top, 1.0
     for c in cands[1:]:
@@ -602,7 +604,7 @@ def rank(cands: list[Candidate]) -> None:
         p_top_better, _, _ = block_test(e_c, e_top)
         if p_top_better < P_MAX:
             continue  # the data tell them apart: gain order stands
-        if c.evidence.get("signature", -1.0) >= best.evidence.get("signature", -1.0) + SIGNATURE_MARGIN:
+        if "signature" in c.evidence and c.evidence["signature"] >= best.evidence["signature"] + SIGNATURE_MARGIN:
             best, best_p = c, p_top_better
     if best is not top:
         cands.remove(best)

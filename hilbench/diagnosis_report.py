@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hilbench.errors import UserError
 from hilbench.metrics import METRIC_KEYS
 
 if TYPE_CHECKING:
@@ -546,9 +547,14 @@ def render(diagnosis: Diagnosis) -> str:
 def write_report(diagnosis: Diagnosis, out_dir: str | os.PathLike[str]) -> Path:
     """Write ``out_dir/report.html`` (folders created) and return its path."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / REPORT_NAME
-    path.write_text(render(diagnosis), encoding="utf-8")
+    page = render(diagnosis)  # before touching the disk: a failure here leaves nothing half-written
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        path = out / REPORT_NAME
+        path.write_text(page, encoding="utf-8")
+    except OSError as exc:
+        raise UserError(f"cannot write the report ({exc.strerror or exc}); expected a folder path",
+                        where=str(out)) from None
     return path
 
 

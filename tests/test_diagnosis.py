@@ -329,6 +329,16 @@ def test_cli_diagnose_json_and_text(tmp_path):
     assert text.exit_code == 0 and "hysteresis" in text.stdout and "significant" in text.stdout
     bad = runner.invoke(app, ["diagnose", str(out), "--model", "pi", "--add", "wobble"])
     assert bad.exit_code == 2 and "wobble" in bad.stderr and "effects:" in bad.stderr
+    # --report DIR: the HTML page, its path printed (on stderr with --json, which keeps stdout one document)
+    made = runner.invoke(app, ["diagnose", str(out), "--model", "linear", "--add", "hysteresis", "--json",
+                               "--report", str(tmp_path / "rep")])
+    assert made.exit_code == 0, made.output
+    page = tmp_path / "rep" / "report.html"
+    assert page.is_file() and "<img" in page.read_text(encoding="utf-8")
+    assert _json.loads(made.stdout)["steps"][1]["added"] == "hysteresis" and str(page) in made.stderr
+    (tmp_path / "a-file").write_text("x")
+    bad = runner.invoke(app, ["diagnose", str(out), "--model", "linear", "--report", str(tmp_path / "a-file")])
+    assert bad.exit_code == 2 and "a-file" in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
 
 
 def test_creep_needs_drift_on_holds(auto_results):
@@ -408,3 +418,36 @@ def test_tie_broken_by_the_residuals_pattern(auto_results):
     asym = next(c for c in first.effects if c.effect == "asymmetry")
     assert sat.evidence["signature"] > asym.evidence["signature"] + 0.5  # odd vs even share of the error
     assert first.effects[0].effect == "saturation"
+
+
+def test_cli_diagnose_bad_input_one_line(tmp_path):
+    """No output channel, a spec that cannot be fitted, an unknown effect: one line naming what is
+    available, exit 2."""
+    from typer.testing import CliRunner
+
+    from hilbench.cli import app
+
+    runner = CliRunner()
+    path = tmp_path / "no-output.h5"
+    u = np.sin(np.arange(2000) / 100.0)
+    RecordingWriter(path).write_run("r", {"time": np.arange(2000) / FS, "input": u, "displacement": 2 * u},
+                                    {"time": "s", "input": "V", "displacement": "um"}, experiment="t",
+                                    excitation="{}", sample_rate_hz=FS)
+    cases = [
+        (["--model", "pi"], ["no 'output' channel", "channels: time, input, displacement"]),
+        (["--model", "pi+bogus"], ["'bogus'", "bases:", "effects:"]),
+        (["--model", "pi(n=0)"], ["at least 1"]),
+        (["--model", "pi+asymmetry(order=12)"], ["order must be 2 to 8"]),
+    ]
+    good = tmp_path / "good.h5"
+    RecordingWriter(good).write_run("r", {"time": np.arange(2000) / FS, "input": u, "output": 2 * u},
+                                    {"time": "s", "input": "V", "output": "um"}, experiment="t",
+                                    excitation="{}", sample_rate_hz=FS)
+    for args, needles in cases:
+        target = path if "no 'output' channel" in needles[0] else good
+        r = runner.invoke(app, ["diagnose", str(target), *args])
+        assert r.exit_code == 2, (args, r.output)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and all(n in lines[0] for n in needles), (args, lines)
+    r = runner.invoke(app, ["diagnose", str(good), "--model", "pi", "--add", "creeep"])
+    assert r.exit_code == 2 and "creeep" in r.stderr and "creep" in r.stderr.replace("creeep", "")

@@ -156,6 +156,8 @@ class OperatorBase(Component):
 
     def prepare(self, s: Signals) -> None:
         n = int(self.options.get("n", self.default_n))
+        if n < 1:
+            raise UserError(f"{self.name}(n={n}): the number of operators must be at least 1")
         if "thresholds" not in self.constants:
             v = s.v
             # Play: a threshold beyond half the input range never switches; one-sided play: up to
