@@ -568,6 +568,10 @@ def _try(paths: Any, base: FitResult, effect: str, rows: _Rows, noise: float, kw
     sentence, evidence = explain(effect, rows)
     if effect == "creep":
         checks["drift_on_holds"] = evidence["drift_over_rms"] >= CREEP_MIN_DRIFT
+        if checks["drift_on_holds"] and not all(checks.values()):
+            # the physical signature is there; say so, since the refit's verdict alone would hide it
+            sentence += (f"; the drift is there, but adding creep alone changes the validation error by "
+                         f"{-100 * gain:+.2g} %: another missing effect may mask it")
     if plan is not None:
         sentence += (f"; calibrated at {'/'.join(f'{f:.3g}' for f in plan.calibrate_hz)} Hz, it changes the error at "
                      f"{'/'.join(f'{f:.3g}' for f in plan.confirm_hz)} Hz by {-100 * gain:+.2g} %")
