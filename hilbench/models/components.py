@@ -474,9 +474,11 @@ class Asymmetry(Component):
 class Saturation(Component):
     name = "saturation"
     summary = "loop flattening at large drive: tanh(v/s) and the fractional terms sgn(v)|v|^(1/2), ^(1/3)"
-    options_schema = {"s": float}
+    options_schema = {"s": float, "form": str}
 
     def prepare(self, s: Signals) -> None:
+        if str(self.options.get("form", "output")) not in ("output", "input"):
+            raise UserError(f"saturation(form={self.options['form']}): expected form=output or form=input")
         if not self.params:
             self.params = [ShapeParam("s", 0.5, 0.05, 3.0, "normalised input", log=True, doc="tanh knee")]
 
@@ -487,8 +489,27 @@ class Saturation(Component):
         # non-negative weights: every column is compressive (concave for v > 0, convex below), so the
         # effect can only flatten the response at large drive, never stiffen it (that would be an
         # expansive polynomial: asymmetry); actuators here rise with their input (PI weights >= 0)
-        return Columns.of(np.column_stack([np.tanh(v / self.param("s")), sq, cb]),
-                          ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"], lower=0.0, hysteresis=True)
+        mats = [np.column_stack([np.tanh(v / self.param("s")), sq, cb])]
+        names = ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"]
+        lower = [0.0, 0.0, 0.0]
+        if str(self.options.get("form", "output")) == "output":
+            # a saturating *output*: L tanh(h / L) = h phi(h / L), phi(x) = tanh(x) / x, with h the
+            # hysteresis output, about G v; so the hysteresis columns flatten by phi(v / s) at large
+            # drive. As copies times (phi - 1) with their own weights the model stays linear in them.
+            x = v / self.param("s")
+            with np.errstate(divide="ignore", invalid="ignore"):
+                phi = np.where(np.abs(x) > 1e-8, np.tanh(x) / np.where(x == 0, 1.0, x), 1.0)
+            for block in previous:
+                if block.hysteresis:
+                    keep = [j for j, name in enumerate(block.names) if name != "offset"]
+                    mats.append(block.matrix[:, keep] * (phi - 1.0)[:, None])
+                    names += [f"{block.names[j]}*(phi(v/s)-1)" for j in keep]
+                    # the copies of the linear term and of the operators (weights >= 0, the gain
+                    # rises with the input) are >= 0 too: they only take away at large drive, i.e.
+                    # flatten, never stiffen (an expansive shape is asymmetry's)
+                    lower += [0.0 if block.names[j] == "p0*v" or block.names[j].startswith("w[")
+                              else float(block.lower[j]) for j in keep]
+        return Columns.of(np.hstack(mats), names, lower=lower, hysteresis=True)
 
 
 class Creep(Component):
