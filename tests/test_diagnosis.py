@@ -179,9 +179,28 @@ thresholds = [0.4, 1.2, 2.5]
 weights = [0.5, 0.3, 0.2]
 eta = [0.6, 0.3, 0.0]
 """, "pi", ["saturation"], lambda s: triangles(s, (0.5, 1.5), (7.0, 5.0, 3.0))),
+    # second draws of the first four effects: a faster, weaker creep; a temperature that oscillates
+    # and changes the gain more; an M-play hysteresis found from a linear start; two effects of
+    # another kind together
+    "creep/2": (CREEP.replace("[0.1]", "[0.06]").replace("[0.5]", "[0.25]"), "pi", ["creep"],
+                lambda s: excitation(s + 10)),
+    "temperature/2": (TEMPERATURE.replace("0.02\n", "0.04\n").replace(
+        '{ kind = "ramp", start = 25.0, end = 35.0, duration_s = 8.0 }',
+        '{ kind = "sine", mean = 30.0, amplitude = 6.0, period_s = 5.0 }'), "pi", ["temperature"],
+        lambda s: sines(s + 10, (0.5, 1, 2), steps=True)),
+    "hysteresis/2": ("""
+[plant.hysteresis]
+model = "m-play"
+linear_gain = 0.8
+thresholds = [0.4, 1.2, 2.5]
+weights = [0.5, 0.3, 0.2]
+eta = [0.6, 0.3, 0.0]
+""", "linear", ["hysteresis"], lambda s: triangles(s, (0.5, 1.5), (6.0, 4.0, 2.0))),
+    "saturation+delay": (SATURATION + DELAY.replace("0.004", "0.003"), "pi", ["saturation", "delay"],
+                         lambda s: sines(s + 30, (1, 3, 7), steps=True)),
 }
 NEW = ["rate-dependence", "dynamics", "delay", "saturation", "load"]
-NEW += [f"{c}/2" for c in NEW] + ["asymmetry/3", "saturation/3"]
+NEW += [f"{c}/2" for c in NEW] + ["asymmetry/3", "saturation/3", "creep/2", "temperature/2", "hysteresis/2"]
 
 
 @pytest.fixture(scope="module")
@@ -228,12 +247,14 @@ def test_clean_case_reports_nothing_significant(auto_results):
     assert d.metrics["validation"]["rmse"] < 2.0 * d.noise
 
 
-def test_two_hidden_effects(auto_results):
-    d = auto_results("creep+asymmetry")
+@pytest.mark.parametrize("case", ["creep+asymmetry", "saturation+delay"])
+def test_two_hidden_effects(case, auto_results):
+    d = auto_results(case)
+    hidden = CASES[case][2]
     first = d.rounds[0]
-    assert first.effects[0].effect in ("creep", "asymmetry") and first.effects[0].significant
+    assert first.effects[0].effect in hidden and first.effects[0].significant
     added = [s["added"] for s in d.steps[1:]]
-    assert {"creep", "asymmetry"} <= set(added), added
+    assert set(hidden) <= set(added), added
     assert d.steps[0]["validation"]["rmse"] >= 3.0 * d.steps[-1]["validation"]["rmse"]
 
 

@@ -80,6 +80,16 @@ def lowpass_block(u: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarra
 
 
 @njit(cache=True)
+def lowpass_columns(x: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarray) -> None:
+    """:func:`lowpass_block` on every column of x (n, p) in one pass over the rows; state (p,)."""
+    n, p = x.shape
+    for k in range(n):
+        for j in range(p):
+            state[j] += alpha * (x[k, j] - state[j])
+            out[k, j] = state[j]
+
+
+@njit(cache=True)
 def turning_point_frequency(u: np.ndarray, fs: float, state: np.ndarray, f_out: np.ndarray, a_out: np.ndarray) -> None:
     """Drive frequency (Hz) and amplitude from the last half cycle between turning points.
 

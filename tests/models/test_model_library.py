@@ -29,7 +29,8 @@ def data(n: int = 6000, seed: int = 0) -> RunData:
     return RunData(u, out + 0.01 * rng.standard_normal(n), {"temperature": temperature}, FS, "r")
 
 
-SPECS = [*BASES, "pi+asymmetry", "pi+saturation", "pi+creep", "pi+rate-dependence(form=damping)",
+SPECS = [*BASES, "pi+asymmetry", "pi+saturation", "pi+saturation(form=input)", "pi+creep", "pi+creep(form=output)",
+         "pi+asymmetry(order=3)", "pi+rate-dependence(form=damping)",
          "pi1+asymmetry+rate-dependence(form=frequency)", "pmpi+dynamics", "fpmpi+dynamics+delay",
          "pi+temperature", "pi(n=16)+delay+dynamics(kind=first-order)", "pi+dynamics(kind=discrete,pairs=1,zeros=1)"]
 
