@@ -77,6 +77,16 @@ compliance_um_per_N = 0.02
 trajectory = { kind = "steps", levels = [0.0, 40.0, 15.0, 60.0, 25.0], hold_s = 1.6 }
 """
 
+#: an M-play hysteresis (004's operator) in place of MINIMAL_RIG's play operators
+MPLAY = """
+[plant.hysteresis]
+model = "m-play"
+linear_gain = 0.8
+thresholds = [0.4, 1.2, 2.5]
+weights = [0.5, 0.3, 0.2]
+eta = [0.6, 0.3, 0.0]
+"""
+
 
 def sines(seed: int, freqs: tuple[float, ...], steps: bool = False) -> np.ndarray:
     """Whole cycles of sines at ``freqs`` (shuffled, amplitudes 3-6 V, at least 1 s each), each
@@ -171,14 +181,7 @@ CASES = {
 [plant.asymmetry]
 coefficients = [0.0, 0.0, -0.06, 0.0, 0.002]
 """, "pi", ["asymmetry"], lambda s: sines(s + 20, (0.5, 1, 2), steps=True)),
-    "saturation/3": (SATURATION.replace("7.0", "8.5") + """
-[plant.hysteresis]
-model = "m-play"
-linear_gain = 0.8
-thresholds = [0.4, 1.2, 2.5]
-weights = [0.5, 0.3, 0.2]
-eta = [0.6, 0.3, 0.0]
-""", "pi", ["saturation"], lambda s: triangles(s, (0.5, 1.5), (7.0, 5.0, 3.0))),
+    "saturation/3": (SATURATION.replace("7.0", "8.5") + MPLAY, "pi", ["saturation"], lambda s: triangles(s, (0.5, 1.5), (7.0, 5.0, 3.0))),
     # second draws of the first four effects: a faster, weaker creep; a temperature that oscillates
     # and changes the gain more; an M-play hysteresis found from a linear start; two effects of
     # another kind together
@@ -188,14 +191,7 @@ eta = [0.6, 0.3, 0.0]
         '{ kind = "ramp", start = 25.0, end = 35.0, duration_s = 8.0 }',
         '{ kind = "sine", mean = 30.0, amplitude = 6.0, period_s = 5.0 }'), "pi", ["temperature"],
         lambda s: sines(s + 10, (0.5, 1, 2), steps=True)),
-    "hysteresis/2": ("""
-[plant.hysteresis]
-model = "m-play"
-linear_gain = 0.8
-thresholds = [0.4, 1.2, 2.5]
-weights = [0.5, 0.3, 0.2]
-eta = [0.6, 0.3, 0.0]
-""", "linear", ["hysteresis"], lambda s: triangles(s, (0.5, 1.5), (6.0, 4.0, 2.0))),
+    "hysteresis/2": (MPLAY, "linear", ["hysteresis"], lambda s: triangles(s, (0.5, 1.5), (6.0, 4.0, 2.0))),
     "saturation+delay": (SATURATION + DELAY.replace("0.004", "0.003"), "pi", ["saturation", "delay"],
                          lambda s: sines(s + 30, (1, 3, 7), steps=True)),
 }
