@@ -12,9 +12,12 @@
   one-sided Wilcoxon signed-rank test on the per-block squared-error differences of ~20 contiguous
   validation blocks gives p < 0.01, and (d) the current validation error is above the noise floor
   (noise estimated from sample-to-sample residual differences);
+* tries rate-dependence in both forms (the better training fit is kept) and creep in the form that
+  predicts held-back training rows better (:func:`_creep_form`); with one training drive rate,
+  calibrates delay and dynamics across the validation rates (:mod:`hilbench.rate_calibration`);
 * explains each effect in one sentence from residual statistics (``evidence``), ranks them by the
-  measured fractional drop of validation rmse (``expected_gain``), and lists the effects the data
-  cannot test with the reason;
+  measured fractional drop of validation rmse (``expected_gain``; a tie is decided by the residual's
+  pattern, :func:`rank`), and lists the effects the data cannot test with the reason;
 * with ``add`` refits with that effect, with ``auto`` adds the best significant effect while one
   remains (``steps``).
 
@@ -48,6 +51,10 @@ NOISE_FACTOR = 1.5
 #: (the creep low-pass also buys phase lag on delay or dynamics data)
 CREEP_MIN_DRIFT = 0.2
 CREEP_SETTLE_S = 0.1
+#: creep's form is chosen on an inner split: the first CREEP_INNER of the training rows fit, the rest
+#: judge; the output form must lower that error by CREEP_OUTPUT_MARGIN
+CREEP_INNER = 0.8
+CREEP_OUTPUT_MARGIN = 0.1
 #: a tie on validation error is broken by the residual's pattern when signatures differ this much
 SIGNATURE_MARGIN = 0.2
 #: an auxiliary channel is tried when its smoothed range exceeds this many noise stds
@@ -518,12 +525,47 @@ def _variants(spec: str, effect: str) -> list[str]:
     return [spec_with(spec, effect)]
 
 
+def _inner_rmse(result: FitResult, inner: float, outer: float) -> float:
+    """rmse on the rows between the ``inner`` and ``outer`` fractions of every run: training rows
+    of the user's split that the inner fit did not see."""
+    parts = []
+    for r in result.runs:
+        n = len(r.data)
+        lo, hi = int(math.floor(n * inner)), int(math.floor(n * outer))
+        if r.simulated is None or hi <= lo:
+            continue
+        e = (r.simulated - r.data.output)[lo:hi]
+        parts.append(e[np.isfinite(e)])
+    e = np.concatenate(parts) if parts else np.zeros(0)
+    return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
+
+
+def _creep_form(paths: Any, spec: str, train_fraction: float) -> str:
+    """``spec`` plus creep in the form that predicts held-back training rows better.
+
+    The output form (drift of every hysteresis column, the creep of a plant whose creep follows the
+    hysteresis) has many more weights than the input form, so the training error always prefers
+    it; an inner split of the training rows (its first CREEP_INNER part fits, the rest judges)
+    tells whether the extra weights carry over. The user's validation rows stay untouched."""
+    inner = CREEP_INNER * train_fraction
+    if not 0.0 < inner < train_fraction:
+        return spec_with(spec, "creep")
+    scores = {form: _inner_rmse(fit(paths, spec_with(spec, f"creep(form={form})"), train_fraction=inner),
+                                inner, train_fraction) for form in ("input", "output")}
+    # the richer form must do clearly better on the held-back rows
+    if scores["output"] < (1.0 - CREEP_OUTPUT_MARGIN) * scores["input"]:
+        return spec_with(spec, "creep(form=output)")
+    return spec_with(spec, "creep")
+
+
 def _fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:
     """``base`` refitted with ``effect`` on the user's split; with a rate ``plan`` the effect's
     shape is calibrated across drive rates first and fixed."""
     if plan is not None:
         spec, _ = calibrated_spec(paths, base.spec, effect, plan)
         return fit(paths, spec, **kw)
+    if effect == "creep" and not kw.get("train") and not kw.get("test"):
+        return fit(paths, _creep_form(paths, base.spec, float(kw.get("train_fraction", 0.7))), **kw)
     new = None
     for spec in _variants(base.spec, effect):
         fitted = fit(paths, spec, **kw)
@@ -634,9 +676,8 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
 def _add(paths: Any, base: FitResult, effect: str, kw: dict[str, Any]) -> FitResult:
     """``--add``: refit with ``effect``, calibrated across drive rates where the diagnosis would."""
     plan = testable(base.spec, base)
-    if effect in plan.calibrated:
-        return _fit_effect(paths, base, effect, kw, plan.plan)
-    return fit(paths, spec_with(base.spec, effect), **kw)
+    # the same form the diagnosis would try (rate calibration, creep's and rate-dependence's forms)
+    return _fit_effect(paths, base, effect, kw, plan.plan if effect in plan.calibrated else None)
 
 
 def _step(result: FitResult, added: str | None) -> dict[str, Any]:

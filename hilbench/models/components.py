@@ -520,8 +520,8 @@ class Creep(Component):
     copies carry their own weights, as the products of creep gains and operator weights). The output
     form fits a plant whose creep acts after the hysteresis far better (0.052 -> 0.015 um on the
     suite's creep case) but its copies overfit short or tail-heavy training data (aixACCT creep
-    records: 0.098 -> 0.167 um; a 2 s creep: 0.024 -> 0.027 um), so it is not the default and the
-    diagnosis tries the input form.
+    records: 0.098 -> 0.167 um; a 2 s creep: 0.024 -> 0.027 um), so it is not the default; the
+    diagnosis chooses between the forms on an inner split of the training rows.
     """
 
     name = "creep"
