@@ -1,4 +1,4 @@
-"""Speed of ``hilbench.diagnosis.diagnose`` on a 200k-sample recording with every candidate effect testable.
+"""Speed of ``hilbench.diagnosis.diagnose.diagnose`` on a 200k-sample recording with every candidate effect testable.
 
     python benchmarks/bench_diagnosis.py                     # full size: 2 runs x 10^5 samples at 1 kHz
     python benchmarks/bench_diagnosis.py --samples 20000     # quick
@@ -12,7 +12,7 @@ period 60 s). The input repeats 1 s holds at random levels (steps into and out o
 sines at 1, 3 and 7 Hz, so every candidate of ``diagnose`` is testable: asymmetry, saturation,
 rate-dependence (both forms), dynamics, creep, delay and the ``temperature`` channel.
 
-Per-candidate fit times come from wrapping ``hilbench.diagnosis.fit`` (the module attribute the
+Per-candidate fit times come from wrapping ``hilbench.diagnosis.diagnose.fit`` (the module attribute the
 diagnosis calls) with a timer for the duration of the call; hilbench itself is not changed.
 """
 
@@ -99,8 +99,8 @@ def excitation(n: int, seed: int) -> np.ndarray:
 
 
 def make_recording(folder: Path, samples: int, runs: int = 2) -> Path:
-    from hilbench.config import load_rig
-    from hilbench.recording import RecordingWriter
+    from hilbench.rig.config import load_rig
+    from hilbench.recording.hdf5 import RecordingWriter
     from hilbench.sim.plant import Plant
 
     rig = folder / "bench-diagnosis.toml"
@@ -121,13 +121,13 @@ def make_recording(folder: Path, samples: int, runs: int = 2) -> Path:
 
 
 class FitTimer:
-    """Wraps ``hilbench.diagnosis.fit`` for the duration of a ``with`` block; records (spec, seconds)."""
+    """Wraps ``fit`` where the diagnosis refits candidates (``hilbench.diagnosis.refit``) for the duration of a ``with`` block; records (spec, seconds)."""
 
     def __init__(self) -> None:
         self.calls: list[dict[str, Any]] = []
 
     def __enter__(self) -> FitTimer:
-        import hilbench.diagnosis as D
+        import hilbench.diagnosis.refit as D
 
         self._mod, self._orig = D, D.fit
 
@@ -163,8 +163,8 @@ def _cprofile(fn: Any, top: int = 25) -> list[dict[str, Any]]:
 
 
 def _run(folder: Path, samples: int, profile: bool, auto: bool) -> dict[str, Any]:
-    from hilbench.diagnosis import diagnose
-    from hilbench.fitting import fit
+    from hilbench.diagnosis.diagnose import diagnose
+    from hilbench.identify.fitting import fit
 
     C.note(f"bench_diagnosis: writing a {samples}-sample recording")
     t0 = time.perf_counter()
@@ -189,9 +189,9 @@ def _run(folder: Path, samples: int, profile: bool, auto: bool) -> dict[str, Any
     per_effect = []
     calls = list(timer.calls)
     for c in d.effects:
-        from hilbench.diagnosis import _variants  # the specs the candidate was tried as
+        from hilbench.diagnosis.refit import effect_specs  # the specs the candidate was tried as
 
-        specs = _variants(d.spec, c.effect)
+        specs = effect_specs(d.spec, c.effect)
         mine = [x for x in calls if x["spec"] in specs]
         per_effect.append({"effect": c.effect, "specs_fitted": [x["spec"] for x in mine],
                            "fit_s": float(sum(x["seconds"] for x in mine)), "significant": c.significant,

@@ -183,14 +183,14 @@ def peer_kernels() -> dict[str, Any]:
 
 def record(rig: Any, excitation: Any) -> tuple[np.ndarray, np.ndarray]:
     """One run through the rig's command path: (applied input, measured output)."""
-    u = excitation.generate(rig.fs)
+    u = excitation.generate(rig.sample_rate_hz)
     rig.start_run(float(u[0]))
     applied = rig.apply(u)
     return applied, rig.measure(applied)["output"]
 
 
 def compact_run(spec: str) -> Any:
-    from hilbench.plan import plan_from_compact
+    from hilbench.excitation.plan import plan_from_compact
 
     return plan_from_compact([spec])[0].excitation
 
@@ -198,8 +198,8 @@ def compact_run(spec: str) -> Any:
 def pmpi_data(samples: int) -> dict[str, Any]:
     """``samples`` of the piezo-pmpi rig under 004's frequency-converting attenuated triangle (Fig. 15),
     with as many cycles as it takes (10 -> 2 V peaks, 0.5 -> 2 Hz)."""
-    from hilbench.config import load_rig
-    from hilbench.rig import Rig
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
 
     cfg = load_rig("piezo-pmpi")
     rig = Rig(cfg)
@@ -219,8 +219,8 @@ def pmpi_data(samples: int) -> dict[str, Any]:
 def duhem_data(cycles: float) -> dict[str, Any]:
     """001 sec. 3.1 on the gmm-issf-duhem rig: 1 Hz sines of 2, 3, 4, 5 A, then the 6..1 A triangle,
     recorded one after the other on the same rig (the actuator's memory carries over)."""
-    from hilbench.config import load_rig
-    from hilbench.rig import Rig
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
 
     cfg = load_rig("gmm-issf-duhem")
     rig = Rig(cfg)
@@ -241,7 +241,7 @@ def duhem_data(cycles: float) -> dict[str, Any]:
 
 
 def fmetrics(y: np.ndarray, yhat: np.ndarray) -> dict[str, float]:
-    from hilbench.metrics import metrics
+    from hilbench.identify.metrics import metrics
 
     return metrics(y, yhat)
 
@@ -329,8 +329,8 @@ def comparison(hil: dict[str, Any], de: dict[str, Any], de_same: dict[str, Any] 
 
 
 def pi_data(workdir: Path, samples: int) -> dict[str, Any]:
-    from hilbench.config import load_rig
-    from hilbench.rig import Rig
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
 
     cfg = load_rig(C.write_rig(workdir))
     rig = Rig(cfg)

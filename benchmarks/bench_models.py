@@ -119,9 +119,9 @@ def fused_kernels() -> dict[str, Any]:
 
 
 def make_data(samples: int) -> dict[str, Any]:
-    from hilbench.config import load_rig
-    from hilbench.plan import plan_from_compact
-    from hilbench.rig import Rig
+    from hilbench.rig.config import load_rig
+    from hilbench.excitation.plan import plan_from_compact
+    from hilbench.rig.rig import Rig
 
     cfg = load_rig(RIG)
     rig = Rig(cfg)

@@ -3,7 +3,7 @@
 The plant: PI hysteresis with 10 play operators (thresholds 0.1..1.0, positive weights, linear
 term p0), second-order dynamics (500 Hz, zeta 0.3, zero-order hold at 20 kHz) and an output
 sensor with white noise and quantisation. It is built the way every rig builds it: a rig TOML
-through ``hilbench.config.load_rig`` and ``Plant.from_rig``.
+through ``hilbench.rig.config.load_rig`` and ``Plant.from_rig``.
 
 Measured in one run:
 
@@ -152,7 +152,7 @@ def run(samples: int = 10_000_000, peer_samples: int = 200_000, step_samples: in
 
 
 def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workdir: Path) -> dict[str, Any]:
-    from hilbench.config import load_rig
+    from hilbench.rig.config import load_rig
     from hilbench.sim import kernels as K
     from hilbench.sim.plant import Plant
 
@@ -306,7 +306,7 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
         "benchmark": "plant",
         "environment": C.environment(),
         "plant": {
-            "built_with": "hilbench.config.load_rig(rig TOML) -> hilbench.sim.plant.Plant.from_rig",
+            "built_with": "hilbench.rig.config.load_rig(rig TOML) -> hilbench.sim.plant.Plant.from_rig",
             "effects": plant.effects,
             "model": "play (PI)",
             "n_operators": int(plant.op_r.shape[0]),

@@ -10,7 +10,7 @@ Two measurements, in one run:
    Peer, same run: the same arrays written with plain h5py into one preallocated contiguous dataset
    per channel (no resizing, no SWMR, no periodic flush): the ceiling for this disk and HDF5 build.
 2. ``long_run``: a 10^8-sample run (sine at 10 Hz, 5000 s at 20 kHz) through the real runner,
-   ``hilbench.runner.run_plan(Rig(load_rig(path)), runs, out_file)``, in a child process; reports the
+   ``hilbench.runners.sweep.run_plan(Rig(load_rig(path)), runs, out_file)``, in a child process; reports the
    child's peak RSS (VmHWM, and the parent's ``getrusage(RUSAGE_CHILDREN).ru_maxrss``), its RSS after
    imports and rig setup, and end-to-end samples/s. Target: peak RSS < 300 MB.
 
@@ -58,7 +58,7 @@ def _status_kb(key: str) -> int:
 def bench_writer(folder: Path, samples: int, repeats: int, fs: float) -> dict[str, Any]:
     import h5py
 
-    from hilbench.recording import CANONICAL_CHANNELS, ChannelSpec, Recording, RecordingWriter
+    from hilbench.recording.hdf5 import CANONICAL_CHANNELS, ChannelSpec, Recording, RecordingWriter
 
     channels = [
         ChannelSpec("time", "s", CANONICAL_CHANNELS["time"][1]),
@@ -176,10 +176,10 @@ def plan_table(kind: str, samples: int, fs: float) -> dict[str, Any]:
 def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
     """Runs in the child: setup, then run_plan; prints one JSON line on stdout."""
     t_start = time.perf_counter()
-    from hilbench.config import load_rig
-    from hilbench.plan import expand_runs
-    from hilbench.rig import Rig
-    from hilbench.runner import run_plan
+    from hilbench.rig.config import load_rig
+    from hilbench.excitation.plan import expand_runs
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.sweep import run_plan
 
     rss_after_imports = _status_kb("VmRSS")
     cfg = load_rig(rig_path)
@@ -265,7 +265,7 @@ def child_main(rig_path: str, out_path: str, samples: int, kind: str) -> None:
 def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dict[str, Any]:
     out = folder / "long-run.h5"
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", str(rig_path), str(out), str(samples), kind]
-    C.note(f"[recording] long run: {samples:.3g} samples ({kind}) through hilbench.runner.run_plan in a child ...")
+    C.note(f"[recording] long run: {samples:.3g} samples ({kind}) through hilbench.runners.sweep.run_plan in a child ...")
     parent_hwm_kb = _status_kb("VmHWM")
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, env=os.environ.copy())
@@ -278,7 +278,7 @@ def bench_long_run(folder: Path, rig_path: Path, samples: int, kind: str) -> dic
     child = json.loads(proc.stdout.strip().splitlines()[-1])
     peak_mib = child["vmhwm_kb"] / 1024
     return {
-        "what": "hilbench.runner.run_plan(Rig(load_rig(rig)), [one long run], out.h5) in a child process",
+        "what": "hilbench.runners.sweep.run_plan(Rig(load_rig(rig)), [one long run], out.h5) in a child process",
         "excitation": plan_table(kind, samples, C.SAMPLE_RATE_HZ),
         "samples": samples,
         "samples_recorded": child["samples_recorded"],
@@ -315,8 +315,8 @@ def run(samples: int = 100_000_000, writer_samples: int = 20_000_000, repeats: i
         C.use_private_numba_cache(workdir)
         folder = Path(tmp.name)
         rig_path = C.write_rig(folder)
-        from hilbench.config import load_rig
-        from hilbench.rig import Rig
+        from hilbench.rig.config import load_rig
+        from hilbench.rig.rig import Rig
 
         # Compile (or load) the kernels here, so the child loads them from the cache rather than
         # compiling (LLVM would add its own memory to the child's peak).

@@ -13,8 +13,8 @@ import pytest
 from typer.testing import CliRunner
 
 from hilbench.cli import app
-from hilbench.loops import loop_measures
-from hilbench.recording import Recording
+from tests.loop_measures import loop_measures
+from hilbench.recording.hdf5 import Recording
 
 runner = CliRunner()
 

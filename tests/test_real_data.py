@@ -1,6 +1,6 @@
 """Validation on third-party measured data (``../shared/data/real``); skipped when it is absent.
 
-The files are imported into temporary recordings with :func:`hilbench.importers.import_files`
+The files are imported into temporary recordings with :func:`hilbench.recording.importers.import_files`
 (never copied into the project) and fitted as the issue asks:
 
 * ``piezo-stack-150V-1Hz``: one 10 s record at 5 kHz. The command is 0 V until 3.257 s (the
@@ -8,7 +8,7 @@ The files are imported into temporary recordings with :func:`hilbench.importers.
   ~0.05 s of ringing at ~875 Hz). Trained on the first 70 % of the samples, validated on the last
   30 % (t >= 7.0 s, three full cycles the fit never sees), in two ways:
 
-  - the whole record with :func:`hilbench.fitting.fit`'s default split: the idle rows are 46 % of
+  - the whole record with :func:`hilbench.identify.fitting.fit`'s default split: the idle rows are 46 % of
     the training rows and pin the model's offset to the resting value, so a plain 16-operator PI
     validates at ~2.0 % with a constant -0.78 um error;
   - the idle part excluded from training (the model still runs through it): a plain PI validates at
@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilbench.fitting import fit, load_runs
+from hilbench.identify.fitting import fit, load_runs
 from hilbench.identify import fit_model
-from hilbench.importers import import_files
-from hilbench.metrics import metrics
+from hilbench.recording.importers import import_files
+from hilbench.identify.metrics import metrics
 from hilbench.models import Model, RunData
 from tests.conftest import require_real_data
 

@@ -13,7 +13,7 @@ at creep". What the data show (figures measured when written; thresholds leave a
   - train 20 Hz, test 40 + 100 Hz (the issue's protocol). A lag fitted from 20 Hz loops alone is
     wrong (pi+delay: 0.24 ms, and the 100 Hz error rises 0.1216 -> 0.1274 um) because at one rate
     phase lag looks like loop width. So delay and dynamics are calibrated across rates
-    (:mod:`hilbench.rate_calibration`): shape fitted on 20 + 40 Hz and fixed, the model refitted
+    (:mod:`hilbench.diagnosis.rate_calibration`): shape fitted on 20 + 40 Hz and fixed, the model refitted
     on 20 Hz, confirmed on 100 Hz, which no fit saw. ``delay`` ranks first and is significant:
     100 Hz rmse 0.1216 -> 0.0939 um (gain 23 %, p 2e-6, 40 Hz 0.0907 -> 0.0822), delay 0.176 ms;
     ``asymmetry`` follows (22 % on 40 + 100 Hz). ``rate-dependence`` is untestable: its
@@ -24,7 +24,7 @@ at creep". What the data show (figures measured when written; thresholds leave a
 * pnzt-piezoceramic-aixacct ``RMN_TRAP_1400V_1000V_CREEP.dat``: 4 blocks (68, 68, 105, 1400 s)
   read with :func:`load_aixacct_dat`, one run each (input V+ in V, output D1 in um). V+ carries
   ~1 V of noise on the holds; the diagnosis recognises holds inside a dead band of 5 input-noise
-  stds (:mod:`hilbench.input_motion`), so creep is testable as read. The ceramic is driven bipolar
+  stds (:mod:`hilbench.diagnosis.input_motion`), so creep is testable as read. The ceramic is driven bipolar
   beyond its coercive field and its strain is a butterfly (SOURCE.md): even in the input, which
   ``pi`` cannot follow. Started from ``pi+asymmetry`` (the butterfly's even part), creep ranks
   first and is significant: default 70/30 split, validation rmse 0.1773 -> 0.0978 um (gain 45 %,
@@ -41,11 +41,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilbench.diagnosis import Diagnosis, diagnose
-from hilbench.fitting import load_runs
-from hilbench.importers import import_files
-from hilbench.importers_aixacct import load_aixacct_dat
-from hilbench.recording import RecordingWriter
+from hilbench.diagnosis.diagnose import Diagnosis, diagnose
+from hilbench.identify.fitting import load_runs
+from hilbench.recording.importers import import_files
+from hilbench.recording.aixacct import load_aixacct_dat
+from hilbench.recording.hdf5 import RecordingWriter
 from tests.conftest import require_real_data
 
 DSPACE_DIR = "piezo-dspace-preisach"

@@ -30,7 +30,7 @@ from scipy import optimize
 from scipy import signal as sps
 
 from hilbench.errors import UserError
-from hilbench.metrics import metrics
+from hilbench.identify.metrics import metrics
 
 __all__ = [
     "DiscreteTF",
@@ -752,7 +752,7 @@ class DiscreteTF:
 
     metrics: hilbench metric keys (rmse in um, re_n2_pct, ...) of the free-run simulation against
     the data the fit saw; arx_metrics: the same for the equation-error (ARX) estimate. re_n2_pct is
-    relative to ||y|| including the operating point's offset (hilbench.metrics), so it is small
+    relative to ||y|| including the operating point's offset (hilbench.identify.metrics), so it is small
     around a large offset; erms_pct (relative to the output's span) is the fairer figure there.
     """
 

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import signal as sps
 
-from hilbench.config import load_rig
+from hilbench.rig.config import load_rig
 from hilbench.errors import UserError
 from hilbench.identify import linear as L
 from hilbench.identify.linear import (
@@ -25,9 +25,9 @@ from hilbench.identify.linear import (
     zeta_wn_from_overshoot,
     zeta_wn_from_times,
 )
-from hilbench.plan import load_plan_file, plan_from_compact
-from hilbench.rig import Rig
-from hilbench.signals import make_excitation
+from hilbench.excitation.plan import load_plan_file, plan_from_compact
+from hilbench.rig.rig import Rig
+from hilbench.excitation.signals import make_excitation
 from hilbench.sim.dynamics import discretize_dynamics
 from hilbench.sim.plant import Plant
 
@@ -61,7 +61,7 @@ def gu2016_step(rise_s: float | None = None):
     fs = cfg.sample_rate_hz
     excitation = _plan_run("step")
     if rise_s is not None:
-        from hilbench.signals import make_excitation
+        from hilbench.excitation.signals import make_excitation
 
         excitation = make_excitation({**excitation.describe(), "rise_s": rise_s})
     u = excitation.generate(fs)

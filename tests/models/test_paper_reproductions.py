@@ -11,12 +11,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hilbench.config import load_rig
+from hilbench.rig.config import load_rig
 from hilbench.identify import fit_model
-from hilbench.metrics import metrics
+from hilbench.identify.metrics import metrics
 from hilbench.models import Model, RunData
-from hilbench.plan import plan_from_compact
-from hilbench.rig import Rig
+from hilbench.excitation.plan import plan_from_compact
+from hilbench.rig.rig import Rig
 
 
 def record(rig_name: str, excitations: list[str]) -> list[RunData]:

@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hilbench.config import load_rig
-from hilbench.rig import Rig
+from hilbench.rig.config import load_rig
+from hilbench.rig.rig import Rig
 from hilbench.sim import kernels as K
 from hilbench.sim.plant import Plant
 

@@ -1,0 +1,14 @@
+"""The ``hilbench`` command line.
+
+Conventions (DESIGN.md, "Command line"): every command that produces results takes ``--json`` and
+then prints exactly one JSON document on stdout; progress goes to stderr; an error the user can fix
+prints one line (and a hint) on stderr and exits with status 2, no traceback unless ``--debug``.
+
+Each module registers its commands on the one :data:`app`: recording_commands (sweep, show, import,
+plot, rigs), model_commands (fit, diagnose), demo.
+"""
+
+from hilbench.cli import recording_commands, demo, model_commands  # noqa: F401, I001  (registers the commands, in help order)
+from hilbench.cli.app import app, main
+
+__all__ = ["app", "main"]

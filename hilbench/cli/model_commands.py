@@ -1,0 +1,128 @@
+"""Commands on models: fit and diagnose, with their text summaries."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from hilbench.cli.app import (
+    app,
+    print_json,
+    user_errors,
+)
+from hilbench.cli.summaries import diagnosis_lines, fit_report_lines
+from hilbench.errors import UserError
+
+
+@app.command("fit")
+@user_errors
+def fit_(
+    data: list[Path] = typer.Argument(..., metavar="DATA", help="Recording(s) (.h5); all runs are read, in order."),
+    model: str = typer.Option(
+        ..., "--model", "-m", metavar="SPEC|FIT.json",
+        help="Model spec: a base and effects joined by '+', e.g. 'pi', 'pmpi+dynamics', 'pi+creep+temperature', "
+        "'pi(n=16)'; or a fitted model (.json) to evaluate on the data without refitting.",
+    ),
+    train: list[str] = typer.Option(
+        [], "--train", metavar="RUN", help="Run that trains entirely (name, label or number; FILE-STEM:RUN with "
+        "several files). Repeatable. Without --test, the other runs validate.",
+    ),
+    test: list[str] = typer.Option(
+        [], "--test", metavar="RUN", help="Run that validates entirely. Repeatable. Without --train, the other runs train.",
+    ),
+    train_fraction: float = typer.Option(
+        0.7, "--train-fraction", help="Without --train/--test: the first part of every run that trains (0-1]; the rest validates.",
+    ),
+    output: Optional[Path] = typer.Option(
+        None, "--output", "-o", metavar="FIT.json", help="Write the fitted model (spec, parameters with units, "
+        "the runs it was fitted on, metrics) as JSON.",
+    ),
+    plot_png: Optional[Path] = typer.Option(
+        None, "--plot", metavar="PNG", help="Plot measured vs model loops and the error over time, per run (up to 6).",
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress notes on stderr."),
+) -> None:
+    """Fit a model to recordings and report its error on training and validation data.
+
+    By default the first 70 % of every run trains and the last 30 % validates; --train/--test
+    give whole runs roles instead. Runs of one file are chained: the model's memory carries over
+    from one run to the next, as the actuator's did. Errors are free-run simulation errors, in the
+    output unit (um), mse in its square, the *_pct keys in percent.
+    """
+    from hilbench.identify.fitting import fit_or_evaluate, is_model_file
+
+    if output is not None and is_model_file(model):
+        raise UserError("-o writes a fitted model, but --model names a saved one, which is evaluated, not refitted",
+                        where="-o", hint="use --json to keep the evaluation, or give a spec to refit")
+
+    def note(message: str) -> None:
+        if not quiet:
+            typer.echo(message, err=True)
+
+    result = fit_or_evaluate(data, model, train=train or None, test=test or None,
+                             train_fraction=train_fraction, progress=note)
+    for line in result.notes:
+        note(f"note: {line}")
+    if output is not None:
+        note(f"wrote {result.save(output)}")
+    if plot_png is not None:
+        from hilbench.report.fit_figures import plot_fit
+
+        note(f"wrote {plot_fit(result, plot_png)}")
+    if as_json:
+        document = result.to_json()
+        document["files"] = [str(p) for p in data]
+        if output is not None:
+            document["output"] = str(output)
+        if plot_png is not None:
+            document["png"] = str(plot_png)
+        print_json(document)
+        return
+    for line in fit_report_lines(result):
+        typer.echo(line)
+
+
+@app.command()
+@user_errors
+def diagnose(
+    data: list[Path] = typer.Argument(..., metavar="DATA", help="Recording(s) (.h5); all runs are read, in order."),
+    model: str = typer.Option(..., "--model", "-m", metavar="SPEC|FIT.json",
+                              help="Model spec to fit (e.g. 'pi', 'linear') or a fitted model (.json)."),
+    add: Optional[str] = typer.Option(None, "--add", metavar="EFFECT",
+                                      help="Add this effect, refit, and show before and after."),
+    auto: bool = typer.Option(False, "--auto", help="Add the best significant effect while one remains."),
+    train: list[str] = typer.Option([], "--train", metavar="RUN", help="Run that trains entirely. Repeatable."),
+    test: list[str] = typer.Option([], "--test", metavar="RUN", help="Run that validates entirely. Repeatable."),
+    train_fraction: float = typer.Option(0.7, "--train-fraction", help="Without --train/--test: the part of every run that trains."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    report: Optional[Path] = typer.Option(None, "--report", metavar="DIR",
+                                          help="Write a self-contained HTML report (DIR/report.html)."),
+) -> None:
+    """Compare a model with measurements: where it fails, which physical effect is missing.
+
+    Every effect the data can test is added in turn and refitted on the same split; an effect is
+    significant when it lowers the validation error by more than 10 %, agrees between training and
+    validation, passes a block-wise signed-rank test (p < 0.01) and the error is above the noise.
+    """
+    from hilbench.diagnosis.diagnose import diagnose as run_diagnosis
+
+    result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
+                           train_fraction=train_fraction)
+    document = result.to_json()
+    page = None
+    if report is not None:
+        from hilbench.report.diagnosis_report import write_report
+
+        page = write_report(result, report)
+    if as_json:
+        print_json(document)
+        if page is not None:
+            typer.echo(f"report: {page}", err=True)
+        return
+    for line in diagnosis_lines(document):
+        typer.echo(line)
+    if page is not None:
+        typer.echo(f"report: {page}")

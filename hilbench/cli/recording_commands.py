@@ -1,0 +1,195 @@
+"""Commands on rigs and recordings: sweep, show, import, plot, rigs."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Optional
+
+import typer
+
+from hilbench.cli.app import (
+    RunProgress,
+    app,
+    default_output,
+    print_json,
+    user_errors,
+)
+from hilbench.errors import UserError
+
+
+@app.command()
+@user_errors
+def sweep(
+    config: str = typer.Argument(..., help="Rig config: a TOML path or a built-in rig name (see `hilbench rigs`)."),
+    plan: Optional[Path] = typer.Option(None, "--plan", "-p", help="Plan file (TOML with [[runs]] tables)."),
+    excitation: list[str] = typer.Option(
+        [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...",
+        help="Run in compact form, e.g. 'sine:amplitude=3,frequency_hz=1,cycles=5'; '|' sweeps "
+        "(amplitude=1|2|3), '/' makes lists. Repeatable.",
+    ),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", help="Recording (.h5); appended when it exists."),
+    realtime: Optional[bool] = typer.Option(
+        None, "--realtime/--no-realtime", help="Pace a simulated rig at its sample rate (default: the config's)."
+    ),
+    check_only: bool = typer.Option(False, "--check", help="Check the plan against the limits and stop."),
+    log: Optional[Path] = typer.Option(None, "--log", help="Append a JSON line per event (run start, flush, end)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+) -> None:
+    """Run a characterisation sweep on a rig and record it.
+
+    The plan is the config's [[plan.runs]], a --plan file, or --excitation runs. The whole plan is
+    checked against the actuator's range and slew limit before anything moves.
+    """
+    from hilbench.excitation.plan import (
+        check_plan,
+        expand_runs,
+        load_plan_file,
+        plan_from_compact,
+    )
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.sweep import run_plan
+
+    rig_config = load_rig(config)
+    if plan is not None and excitation:
+        raise UserError("give either --plan or --excitation, not both")
+    if plan is not None:
+        runs = load_plan_file(plan)
+    elif excitation:
+        runs = plan_from_compact(excitation)
+    elif rig_config.plan:
+        runs = expand_runs(rig_config.plan, file=rig_config.path)
+    else:
+        raise UserError(
+            "the rig config has no [[plan.runs]]", where=rig_config.path,
+            hint="give --plan FILE or --excitation 'sine:amplitude=1,frequency_hz=1,cycles=3'",
+        )
+    totals = check_plan(runs, rig_config.actuator, rig_config.sample_rate_hz)
+    if check_only:
+        document = {"rig": rig_config.name, "plan_ok": True, **totals, "labels": [r.label for r in runs]}
+        if as_json:
+            print_json(document)
+        else:
+            typer.echo(f"plan OK: {totals['runs']} runs, {totals['samples']} samples, {totals['duration_s']:.3f} s")
+        return
+    out = output or default_output(rig_config.name)
+    rig = Rig(rig_config)
+    log_file = open(log, "a", encoding="utf-8") if log is not None else None  # noqa: SIM115
+
+    def on_event(event: dict[str, Any]) -> None:
+        if log_file is not None:
+            log_file.write(json.dumps({**event, "t": time.time()}) + "\n")
+            log_file.flush()
+
+    started = time.monotonic()
+    try:
+        with RunProgress(not quiet) as progress:
+            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_event=on_event)
+    finally:
+        if log_file is not None:
+            log_file.close()
+    elapsed = time.monotonic() - started
+    document = {
+        "file": str(out),
+        "rig": rig_config.name,
+        "status": result.status,
+        "elapsed_s": round(elapsed, 3),
+        "clamped_samples": rig.clamped_samples,
+        "runs": [{"name": r.group, "label": r.label, "status": r.status, "samples": r.samples, "reason": r.reason}
+                 for r in result.runs],
+    }
+    if as_json:
+        print_json(document)
+    else:
+        typer.echo(f"{out}: {len(result.runs)} runs, status {result.status}, {elapsed:.1f} s")
+        for r in result.runs:
+            typer.echo(f"  {r.group:40s} {r.status:9s} {r.samples:>10d} samples")
+    if result.status != "complete":
+        raise typer.Exit(1)
+
+
+@app.command()
+@user_errors
+def show(
+    file: Path = typer.Argument(..., help="Recording (.h5)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """List the runs of a recording: status, sample rate, samples, channels and units."""
+    from hilbench.recording.hdf5 import Recording
+
+    summary = Recording(file).summary()
+    if as_json:
+        print_json(summary)
+        return
+    typer.echo(f"{summary['file']}  ({summary['format']} v{summary['format_version']}, "
+               f"hilbench {summary['hilbench_version']}, created {summary['created']})")
+    for run in summary["runs"]:
+        duration = f"{run['duration_s']:.3f} s" if run["duration_s"] is not None else "?"
+        typer.echo(f"  {run['name']}: {run['status']}, {run['n_samples']} samples at {run['sample_rate_hz']:g} Hz "
+                   f"({duration}), experiment {run['experiment']!r}")
+        channels = ", ".join(f"{c['name']} [{c['units']}]" for c in run["channels"])
+        typer.echo(f"      channels: {channels}")
+        if run["status"] not in ("complete",) and run["reason"]:
+            typer.echo(f"      reason: {run['reason'].strip().splitlines()[-1]}")
+
+
+@app.command("import")
+@user_errors
+def import_(
+    sources: list[Path] = typer.Argument(..., help="CSV or MATLAB .mat files, one run each."),
+    output: Path = typer.Option(..., "--output", "-o", help="Recording (.h5); appended when it exists."),
+    run: list[str] = typer.Option([], "--run", metavar="NAME", help="Run name per source (default: the file name)."),
+    rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate, Hz, when there is no time column."),
+    map_: list[str] = typer.Option(
+        [], "--map", metavar="SRC=DST", help="Rename a column: SRC=DST or SRC=DST[unit]; SRC may be a 0-based column index or, "
+        "for dSPACE exports, Y(1) or a signal name. Repeatable.",
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Import measured data (CSV, MATLAB, dSPACE ControlDesk .mat) into a recording."""
+    from hilbench.recording.importers import import_files, parse_mapping
+
+    names = import_files(sources, output, run_names=run or None, rate_hz=rate, mapping=parse_mapping(map_))
+    if as_json:
+        print_json({"file": str(output), "runs": names})
+    else:
+        typer.echo(f"{output}: imported {len(names)} run(s): {', '.join(names)}")
+
+
+@app.command()
+@user_errors
+def plot(
+    file: Path = typer.Argument(..., help="Recording (.h5)."),
+    run: list[str] = typer.Option([], "--run", metavar="RUN", help="Run name, label or number (default: all). Repeatable."),
+    output: Path = typer.Option(..., "--output", "-o", help="PNG to write."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Plot time traces and input-output loops of a recording's runs."""
+    from hilbench.report.plotting import plot_runs
+
+    png = plot_runs(file, output, runs=run or None)
+    if as_json:
+        print_json({"file": str(file), "png": str(png)})
+    else:
+        typer.echo(f"wrote {png}")
+
+
+@app.command()
+@user_errors
+def rigs(as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout.")) -> None:
+    """List the built-in rig configs with the paper each follows."""
+    from hilbench.rig.config import builtin_rigs, load_rig
+
+    entries = []
+    for name, path in sorted(builtin_rigs().items()):
+        cfg = load_rig(path)
+        entries.append({"name": name, "paper": cfg.paper, "description": cfg.description, "follows": cfg.follows,
+                        "path": str(path)})
+    if as_json:
+        print_json(entries)
+        return
+    for e in entries:
+        typer.echo(f"{e['name']:24s} paper {e['paper'] or '-':4s} {e['description']}")

@@ -1,0 +1,80 @@
+"""Text summaries of results for people (the --json documents are for scripts)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def fit_report_lines(result: Any) -> list[str]:
+    """Human summary of a :class:`hilbench.identify.fitting.FitResult`: spec, parameters, metric table, time."""
+    from hilbench.identify.metrics import METRIC_KEYS
+
+    model_dict = result.model.to_dict()
+    how = "fitted" if result.refitted else f"loaded from {result.loaded_from}, not refitted"
+    lines = [f"model: {result.spec} ({how})", f"split: {result.split}"]
+    shape = model_dict["parameters"]["shape"]
+    if shape:
+        lines.append("shape parameters:")
+        for p in shape:
+            unit = f" {p['unit']}" if p["unit"] else ""
+            lines.append(f"  {p['component']:>16s}  {p['name']:<22s} {p['value']:12.6g}{unit}")
+    else:
+        lines.append("shape parameters: none (weights only)")
+    weights = model_dict["parameters"]["weights"]
+    y_unit = result.output_unit
+    if len(weights) <= 16:
+        lines.append(f"weights [{y_unit}]: " + ", ".join(f"{w['name']}={w['value']:.4g}" for w in weights))
+    else:
+        lines.append(f"weights: {len(weights)} (see -o FIT.json or --json)")
+    units = {"rmse": y_unit, "mse": f"{y_unit}^2", "mae": y_unit, "mad": y_unit}
+    lines.append(f"{'metric':<18s}{'train':>14s}{'validation':>14s}")
+    for key in METRIC_KEYS:
+        label = f"{key} [{units.get(key, '%')}]"
+        cells = [result.metrics[role][key] for role in ("train", "validation")]
+        lines.append(f"{label:<18s}" + "".join(f"{c:>14.5g}" if c == c else f"{'-':>14s}" for c in cells))
+    lines.append(f"{'samples':<18s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in ("train", "validation")))
+    lines.append("runs:")
+    for r in result.runs:
+        rmse = "  ".join(f"{role} rmse {m['rmse']:.4g}" for role, m in r.metrics.items() if m)
+        lines.append(f"  {r.key:<36s} {r.role:<17s} {rmse}")
+    info = result.fit_info()
+    if result.refitted:
+        n_eval = info["evaluations"]
+        lines.append(f"fit: {info['seconds']:.2f} s, {n_eval} evaluation{'' if n_eval == 1 else 's'} of the weights")
+    elif info.get("seconds") is not None:
+        lines.append(f"fit: loaded; the original fit took {info['seconds']:.2f} s")
+    return lines
+
+
+def range_text(value: Any) -> str:
+    """A where-range for people: numbers to 4 significant digits, a time window as ``run t0-t1 s``."""
+    if isinstance(value, list):
+        if len(value) == 3 and isinstance(value[0], str):
+            return f"{value[0]} {value[1]:.4g}-{value[2]:.4g} s"
+        return "[" + ", ".join(f"{v:.4g}" if isinstance(v, float) else str(v) for v in value) + "]"
+    return str(value)
+
+
+def diagnosis_lines(d: dict[str, Any]) -> list[str]:
+    """Human summary of a diagnosis document (the --json one)."""
+    val = d["metrics"]["validation"]
+    trn = d["metrics"]["train"]
+    lines = [f"model: {d['spec']}   rmse train {trn['rmse']:.4g}, validation {val['rmse']:.4g} "
+             f"(erms {val['erms_pct']:.3g} % of range)"]
+    lines.append("where the validation error is (share of the squared error):")
+    for entry in sorted(d["where"], key=lambda e: -e["share"])[:8]:
+        lines.append(f"  {entry['kind']:<18s} {range_text(entry['range']):<42s} {100 * entry['share']:6.1f} %"
+                     f"  (of {100 * entry.get('fraction_of_rows', float('nan')):.3g} % of rows)")
+    lines.append("effects (best first):")
+    for e in d["effects"]:
+        mark = "significant" if e["significant"] else "not significant"
+        lines.append(f"  {e['effect']:<16s} {mark:<16s} expected gain {100 * e['expected_gain']:6.1f} %  {e['explanation']}")
+    if not d["effects"]:
+        lines.append("  none testable")
+    for u in d["untestable"]:
+        lines.append(f"  {u['effect']:<16s} untestable: {u['reason']}")
+    if d.get("steps"):
+        lines.append("step  spec                                   added             validation rmse")
+        for k, s in enumerate(d["steps"]):
+            lines.append(f"{k:>4d}  {s['spec']:<38s} {str(s['added'] or '-'):<17s} {s['validation']['rmse']:.4g}")
+    return lines

@@ -1,0 +1,139 @@
+"""The diagnosis loop: where a fitted model fails and which effect of DESIGN.md is missing (``hilbench diagnose``).
+
+:func:`diagnose` fits a spec (or evaluates a saved model), then
+
+* splits the squared validation error ``e = model - measured`` (output unit, um) into shares by run,
+  time window, input range x direction (rising / falling / turning / hold), |input rate| and the
+  range of every auxiliary channel (``where``);
+* refits the spec with every effect it lacks and the data can test, on the same split, and calls an
+  effect significant when (a) validation rmse drops by more than 10 %, (b) training improves too and
+  the two relative gains agree (validation at least half of training's, training at least a quarter
+  of validation's: neither an artefact of more parameters nor chance extrapolation), (c) a
+  one-sided Wilcoxon signed-rank test on the per-block squared-error differences of ~20 contiguous
+  validation blocks gives p < 0.01, and (d) the current validation error is above the noise floor
+  (noise estimated from sample-to-sample residual differences);
+* tries every effect of the registry (:mod:`hilbench.effects`) that the data can test
+  (:mod:`hilbench.diagnosis.testability`) in the forms its entry lists (:mod:`hilbench.diagnosis.refit`);
+  with one training drive rate, calibrates delay and dynamics across the validation rates
+  (:mod:`hilbench.diagnosis.rate_calibration`);
+* explains each effect in one sentence from its residual signature (:mod:`hilbench.diagnosis.evidence`),
+  judges and ranks them by the measured fractional drop of validation rmse (``expected_gain``; a tie
+  is decided by the residual's pattern, :mod:`hilbench.diagnosis.verdict`), and lists the effects the
+  data cannot test with the reason;
+* with ``add`` refits with that effect, with ``auto`` adds the best significant effect while one
+  remains (``steps``).
+
+Units: input in the command unit (V or A), errors in the output unit, rates in input units per s,
+times in s, gains as fractions.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from hilbench.diagnosis.refit import fit_effect
+from hilbench.diagnosis.rows import noise_floor, residual_rows
+from hilbench.diagnosis.testability import testable
+from hilbench.diagnosis.verdict import Candidate, judge, rank
+from hilbench.diagnosis.where import where
+from hilbench.identify.fitting import FitResult, PathLike, finite_json, fit, fit_or_evaluate
+
+
+@dataclass
+class Diagnosis:
+    spec: str
+    result: FitResult
+    where: list[dict[str, Any]]
+    effects: list[Candidate]
+    untestable: list[dict[str, str]]
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    noise: float = float("nan")
+    rounds: list[Diagnosis] = field(default_factory=list)  # with add/auto: the diagnosis of every step
+
+    @property
+    def metrics(self) -> dict[str, dict[str, float]]:
+        return self.result.metrics
+
+    @property
+    def best(self) -> Candidate | None:
+        return self.effects[0] if self.effects else None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "spec": self.spec,
+            "metrics": {"train": self.metrics["train"], "validation": self.metrics["validation"]},
+            "where": self.where,
+            "effects": [c.to_json() for c in self.effects],
+            "untestable": self.untestable,
+        }
+        if self.steps:
+            out["steps"] = self.steps
+        return finite_json(out)
+
+
+def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
+    rows = residual_rows(base)
+    noise = noise_floor(rows.e, rows.run)
+    plan = testable(base.spec, base)
+    every = residual_rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
+    cands = [judge(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None)
+             for eff in plan.tries]
+    rank(cands)
+    return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
+
+
+def _add(paths: Any, base: FitResult, effect: str, kw: dict[str, Any]) -> FitResult:
+    """``--add``: refit with ``effect``, calibrated across drive rates where the diagnosis would."""
+    plan = testable(base.spec, base)
+    # the same form the diagnosis would try (rate calibration, creep's and rate-dependence's forms)
+    return fit_effect(paths, base, effect, kw, plan.plan if effect in plan.calibrated else None)
+
+
+def _step(result: FitResult, added: str | None) -> dict[str, Any]:
+    return {"spec": result.spec, "added": added, "validation": dict(result.metrics["validation"]),
+            "train": dict(result.metrics["train"])}
+
+
+def diagnose(
+    paths: PathLike | Sequence[PathLike],
+    spec_or_model_file: str,
+    *,
+    train: Sequence[str] | None = None,
+    test: Sequence[str] | None = None,
+    add: str | None = None,
+    auto: bool = False,
+    max_steps: int = 4,
+    train_fraction: float = 0.7,
+) -> Diagnosis:
+    """Fit (or load) the model, find where it fails and which effect is missing.
+
+    With ``add`` the effect is added and the model refitted; with ``auto`` the best significant
+    effect is added while one remains (at most ``max_steps`` additions). The returned diagnosis is
+    of the final model; ``steps`` lists every model tried in order (the first is the start).
+    A saved model is evaluated as is for ``metrics``; candidate effects are compared against its
+    spec refitted on the same split, so both sides of every comparison saw the same training rows.
+    """
+    kw = {"train": train, "test": test, "train_fraction": train_fraction}
+    start = fit_or_evaluate(paths, spec_or_model_file, **kw)
+    base = start if start.refitted else fit(paths, start.spec, **kw)
+    steps = [_step(start, None)]
+    if add is not None:
+        base = _add(paths, base, add, kw)
+        steps.append(_step(base, add))
+    result = _diagnose_once(paths, base, kw)
+    rounds = [result]
+    if auto:
+        while len(steps) - 1 < max_steps and result.best is not None and result.best.significant:
+            best = result.best
+            base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
+            steps.append(_step(base, best.effect))
+            result = _diagnose_once(paths, base, kw)
+            rounds.append(result)
+    result.rounds = rounds
+    if add is None and not auto and not start.refitted:
+        result.result = start  # report the saved model's own metrics
+    if add is not None or auto:
+        result.steps = steps
+    return result

@@ -1,0 +1,177 @@
+"""The evidence of an effect: the residual pattern that is its physical signature.
+
+Each effect of :data:`hilbench.effects.EFFECTS` names a ``signature``; :data:`SIGNATURES` turns the
+residual rows into one sentence and the numbers behind it. A numeric ``signature`` entry in the
+evidence (the fraction of the error's variance the pattern explains) lets the ranking break ties
+between refits that explain the data equally well. An effect may also name an ``evidence_check``
+(:data:`EVIDENCE_CHECKS`): a pattern that must be present before the effect can be significant.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hilbench import effects as E
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.rows import ResidualRows
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 3 or np.std(a[ok]) == 0 or np.std(b[ok]) == 0:
+        return 0.0
+    return float(np.corrcoef(a[ok], b[ok])[0, 1])
+
+
+def explained(e: np.ndarray, cols: list[np.ndarray]) -> float:
+    """Fraction of the residual's variance a least-squares fit on ``cols`` (plus a constant) explains."""
+    A = np.column_stack([np.ones_like(e), *cols])
+    ok = np.all(np.isfinite(A), axis=1) & np.isfinite(e)
+    if ok.sum() <= A.shape[1] or np.var(e[ok]) == 0:
+        return 0.0
+    w, *_ = np.linalg.lstsq(A[ok], e[ok], rcond=None)
+    r = e[ok] - A[ok] @ w
+    return float(max(0.0, 1.0 - np.var(r) / np.var(e[ok])))
+
+
+
+def _drift_on_holds(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e, e2 = rows.e, rows.e**2
+    total = float(e2.sum()) or 1.0
+    hold = rows.direction == "hold"
+    early = hold & (rows.since < 1.0)
+    late = hold & (rows.since >= 1.0)
+    # drift: residual changes along a hold; its size relative to the rms error
+    drift = []
+    for k in np.unique(rows.run):
+        m = hold & (rows.run == k)
+        idx = np.flatnonzero(m)
+        for seg in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            # skip the first T.CREEP_SETTLE_S of a hold: a delay or a resonance settles there, while
+            # creep (time constants of tenths of seconds and more) keeps drifting after it
+            seg = seg[rows.since[seg] >= T.CREEP_SETTLE_S]
+            if seg.size > 50:
+                drift.append(abs(float(np.mean(e[seg[-20:]]) - np.mean(e[seg[:20]]))))
+    rms = math.sqrt(total / e.size)
+    ev = {"hold_share": float(e2[hold].sum() / total), "hold_rows": float(hold.mean()),
+          "drift_over_hold_um": float(np.mean(drift)) if drift else 0.0,
+          "drift_over_rms": float(np.mean(drift) / rms) if drift and rms > 0 else 0.0,
+          "first_second_vs_later_mse": float(np.mean(e2[early]) / max(np.mean(e2[late]), 1e-30))
+          if early.any() and late.any() else float("nan")}
+    return (f"the error drifts by {ev['drift_over_hold_um']:.3g} (output unit) while the input holds still "
+            f"({ev['drift_over_rms']:.2g}x the rms error) and decays after each step: creep"), ev
+
+
+def _fast_vs_slow(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e2 = rows.e**2
+    rate = np.abs(rows.du)
+    moving = rate > 0
+    hi = moving & (rate >= np.percentile(rate[moving], 67)) if moving.any() else moving
+    lo = moving & (rate <= np.percentile(rate[moving], 33)) if moving.any() else moving
+    ratio = float(np.mean(e2[hi]) / max(np.mean(e2[lo]), 1e-30)) if hi.any() and lo.any() else float("nan")
+    ev = {"mse_fast_over_slow": ratio, "corr_e2_rate": correlation(e2, rate)}
+    return (f"the squared error is {ratio:.2g}x larger at the fastest third of input rates than at the slowest: "
+            "rate-dependence"), ev
+
+
+def _derivatives(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e = rows.e
+    c2 = correlation(e, rows.d2y)
+    x = explained(e, [rows.dy, rows.d2y])
+    ev = {"corr_e_d2y": c2, "explained_by_dy_d2y": x, "signature": x}
+    return (f"the error follows the output's derivatives ({100 * x:.2g} % of its variance, correlation "
+            f"with acceleration {c2:.2f}): a lag and ringing of linear dynamics"), ev
+
+
+def _rate_of_change(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e = rows.e
+    c1 = correlation(e, rows.dy)
+    ev = {"corr_e_dy": c1, "explained_by_dy": explained(e, [rows.dy])}
+    ev["signature"] = ev["explained_by_dy"]
+    # measured y(t) = model(t - lag) gives e = model - y ~ lag * dy/dt: a positive lag means the
+    # measurement trails the model
+    lag = float(np.dot(e, rows.dy) / max(np.dot(rows.dy, rows.dy), 1e-30))
+    ev["equivalent_lag_s"] = lag
+    return (f"the error is proportional to the output's rate of change (correlation {c1:.2f}, "
+            f"as a lag of {1e3 * lag:.3g} ms): a time delay"), ev
+
+
+def _even_input(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e, u = rows.e, rows.u
+    span = max(float(np.ptp(u)), 1e-12)
+    v = (u - u.mean()) / (span / 2)
+    even = explained(e, [v**2, v**4])
+    ev = {"explained_by_even_input": even, "corr_e_u2": correlation(e, v**2), "signature": even}
+    return (f"{100 * even:.2g} % of the error's variance is an even function of the input: the loops are "
+            "not centrally symmetric (asymmetry)"), ev
+
+
+def _odd_input(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e, u, e2 = rows.e, rows.u, rows.e**2
+    total = float(e2.sum()) or 1.0
+    a = np.abs(u - np.median(u))
+    outer = a >= np.percentile(a, 80)
+    share = float(e2[outer].sum() / total)
+    odd = explained(e, [u, u**3])
+    ev = {"outer_20pct_share": share, "explained_by_odd_input": odd, "signature": odd}
+    return (f"{100 * share:.2g} % of the squared error lies in the outer fifth of the input range: the loops "
+            "flatten at large drive (saturation)"), ev
+
+
+def _direction(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e = rows.e
+    s = np.where(rows.direction == "rising", 1.0, np.where(rows.direction == "falling", -1.0, 0.0))
+    x = explained(e, [s])
+    ev = {"explained_by_direction": x, "corr_e_direction": correlation(e, s), "signature": x}
+    return (f"the error's sign depends on the direction of motion ({100 * x:.2g} % of its variance): "
+            "rate-independent memory (hysteresis)"), ev
+
+
+def _channel(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    e, u = rows.e, rows.u
+    a = rows.aux.get(effect)
+    c = correlation(e, a) if a is not None else 0.0
+    ev = {"corr_e_channel": c, "explained_by_channel": explained(e, [a, a * u]) if a is not None else 0.0}
+    ev["signature"] = ev["explained_by_channel"]
+    return (f"the error follows the {effect} channel (correlation {c:.2f}, {100 * ev['explained_by_channel']:.2g} % "
+            f"of its variance with the input): dependence on {effect}"), ev
+
+
+#: signature name (hilbench.effects) -> pattern(effect name, rows) -> (sentence, evidence)
+SIGNATURES: dict[str, Callable[[str, ResidualRows], tuple[str, dict[str, Any]]]] = {
+    "drift-on-holds": _drift_on_holds,
+    "fast-vs-slow": _fast_vs_slow,
+    "derivatives": _derivatives,
+    "rate-of-change": _rate_of_change,
+    "even-input": _even_input,
+    "odd-input": _odd_input,
+    "direction": _direction,
+    "channel": _channel,
+}
+
+@dataclass(frozen=True)
+class EvidenceCheck:
+    key: str  # the name of the check in a verdict's ``checks``
+    holds: Callable[[dict[str, Any]], bool]  # test on the evidence
+    present: str  # what to say when the pattern is there but the refit alone does not pay
+
+
+#: check name (hilbench.effects) -> the check
+EVIDENCE_CHECKS: dict[str, EvidenceCheck] = {
+    # creep's physical signature, which a refit alone can fake (the creep low-pass also buys phase
+    # lag on delay or dynamics data): the residual drifts along holds
+    "drift-on-holds": EvidenceCheck("drift_on_holds", lambda ev: ev["drift_over_rms"] >= T.CREEP_MIN_DRIFT,
+                                    "the drift is there"),
+}
+
+
+def explain(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
+    """One sentence from residual statistics, and the numbers behind it."""
+    signature = E.effect(effect).signature
+    assert signature is not None, effect
+    return SIGNATURES[signature](effect, rows)

@@ -1,0 +1,116 @@
+"""Rate effects when the training runs hold one drive rate (``hilbench diagnose --train``).
+
+A delay or a dynamic lag adds phase lag proportional to the drive frequency. At one drive
+frequency that lag is indistinguishable from loop width, so a fit on one rate learns it as
+hysteresis and mispredicts every other rate (piezo-dspace-preisach: ``pi`` trained at 20 Hz,
+validated at 40 and 100 Hz). When the validation runs hold two or more other drive rates, the
+effect's shape (delay in s, corner or natural frequency) is *calibrated* on the training runs plus
+the validation runs at the nearer rates, then fixed, and the model is refitted on the training runs
+alone; the validation runs at the farthest rate, which no fit saw, *confirm* it. The fixed shape is
+written into the spec (``pi+delay(seconds=0.000176)``), so the result is reproducible and
+``--add``/``--auto`` carry it on. See docs/decisions/0006-rate-effects-from-one-training-rate.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from hilbench.diagnosis.input_motion import half_cycle_frequencies, motion
+
+if TYPE_CHECKING:
+    from hilbench.identify.fitting import FitResult, FitRun
+
+#: drive frequencies closer than this ratio count as one rate
+RATE_RATIO = 1.5
+#: the effects whose shape is calibrated this way: all their shape is a few rate parameters
+CALIBRATED_EFFECTS = ("dynamics", "delay")
+
+
+@dataclass
+class RatePlan:
+    """Which runs calibrate and which confirm a rate effect; drive frequencies in Hz."""
+
+    train: list[str]
+    calibrate: list[str]
+    confirm: list[str]
+    training_hz: float
+    calibrate_hz: list[float]
+    confirm_hz: list[float]
+
+    def describe(self) -> str:
+        def hz(values: Sequence[float]) -> str:
+            return "/".join(f"{v:.3g}" for v in values) + " Hz"
+
+        return (f"calibrated on {', '.join(self.calibrate)} ({hz(self.calibrate_hz)}), confirmed on "
+                f"{', '.join(self.confirm)} ({hz(self.confirm_hz)})")
+
+    def to_json(self) -> dict[str, Any]:
+        return {"training_hz": self.training_hz, "calibrated_on": self.calibrate, "calibrate_hz": self.calibrate_hz,
+                "confirmed_on": self.confirm, "confirm_hz": self.confirm_hz}
+
+
+def _drive_hz(runs: Sequence[FitRun], span: float) -> float:
+    """Median half-cycle drive frequency over the runs (Hz); NaN without reversals."""
+    f = [half_cycle_frequencies(motion(r.data.input, r.data.sample_rate_hz, span)["flips"], r.data.sample_rate_hz)
+         for r in runs]
+    cat = np.concatenate(f) if f else np.zeros(0)
+    return float(np.median(cat)) if cat.size else float("nan")
+
+
+def _ratio(a: float, b: float) -> float:
+    return max(a / b, b / a)
+
+
+def rate_plan(result: FitResult) -> tuple[RatePlan | None, str]:
+    """The calibrate/confirm split of the validation runs, or None and the reason there is none."""
+    runs = [r for r in result.runs if len(r.data) and (r.train.any() or r.validation.any())]
+    if any(r.train.any() and r.validation.any() for r in runs):
+        return None, "runs are split in time, so validation holds the training's rates"
+    span = max(float(np.ptp(np.concatenate([r.data.input for r in runs]))), 1e-12)
+    train = [r for r in runs if r.train.any()]
+    f_train = _drive_hz(train, span)
+    if not np.isfinite(f_train):
+        return None, "the training runs have no input reversals"
+    other = []
+    for r in runs:
+        if r.validation.any():
+            f = _drive_hz([r], span)
+            if np.isfinite(f) and _ratio(f, f_train) >= RATE_RATIO:
+                other.append((f, r.key))
+    # group the other rates: sorted, a new group where the frequency jumps by RATE_RATIO or more
+    other.sort()
+    groups: list[list[tuple[float, str]]] = []
+    for f, key in other:
+        if groups and f / groups[-1][-1][0] < RATE_RATIO:
+            groups[-1].append((f, key))
+        else:
+            groups.append([(f, key)])
+    if len(groups) < 2:
+        seen = ", ".join(f"{f:.3g} Hz" for f, _ in other) or "none"
+        return None, (f"validation holds fewer than two other drive rates (training {f_train:.3g} Hz, other rates: "
+                      f"{seen}), so a rate effect cannot be calibrated on one and confirmed on another")
+    far = max(groups, key=lambda g: _ratio(float(np.median([f for f, _ in g])), f_train))
+    near = [item for g in groups if g is not far for item in g]
+    return RatePlan(train=[r.key for r in train], calibrate=[k for _, k in near], confirm=[k for _, k in far],
+                    training_hz=f_train, calibrate_hz=[f for f, _ in near], confirm_hz=[f for f, _ in far]), ""
+
+
+def calibrated_spec(paths: Any, base_spec: str, effect: str, plan: RatePlan) -> tuple[str, FitResult]:
+    """``base_spec`` plus ``effect`` with its shape fitted on training + calibration runs and fixed
+    (every shape parameter written as an option), and that calibration fit."""
+    from hilbench.identify.fitting import fit
+
+    probe = fit(paths, f"{base_spec}+{effect}", train=plan.train + plan.calibrate, test=plan.confirm)
+    name = effect.split("(", 1)[0].strip()
+    component = probe.model.effect(name)
+    assert component is not None, (effect, probe.spec)
+    options = {**{k: v for k, v in component.options.items()}, **{p.name: f"{p.value:.6g}" for p in component.params}}
+    fixed = f"{name}({','.join(f'{k}={v}' for k, v in options.items())})"
+    return f"{base_spec}+{fixed}", probe
+
+
+__all__ = ["CALIBRATED_EFFECTS", "RATE_RATIO", "RatePlan", "calibrated_spec", "rate_plan"]

@@ -1,0 +1,95 @@
+"""Refitting a model with one more effect, in the form the data choose.
+
+An effect of the registry (:data:`hilbench.effects.EFFECTS`) lists the forms it is tried in and how
+the diagnosis chooses among them (``form_choice``):
+
+* ``train``: every form is fitted and the best training fit is kept, so the validation comparison
+  that judges the effect stays fair (rate-dependence: fixed velocity damping or the frequency
+  polynomials of 003; which describes the plant is not known beforehand);
+* ``inner-split``: a richer form has many more weights, so training always prefers it; an inner
+  split of the training rows (its first INNER_SPLIT part fits, the rest judges) tells whether the
+  extra weights carry over, and a richer form must win by RICHER_FORM_MARGIN (creep after the
+  hysteresis, ``creep(form=output)``). The user's validation rows stay untouched.
+
+With a rate plan (one training rate, several validation rates) the effect's shape is calibrated
+across drive rates first and fixed (:mod:`hilbench.diagnosis.rate_calibration`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from hilbench import effects as E
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.rate_calibration import RatePlan, calibrated_spec
+from hilbench.errors import UserError
+from hilbench.identify.fitting import FitResult, fit
+from hilbench.models.model import split_spec
+
+
+def spec_with(spec: str, effect: str) -> str:
+    """``spec`` plus ``effect``; an effect that needs a memoryless base (``hysteresis``) replaces
+    the ``linear`` base with its component (``pi``)."""
+    name = split_spec(effect)[0][0]
+    entry = E.EFFECTS.get(name)
+    if entry is not None and E.MEMORYLESS_BASE in entry.requires:
+        parts = [p.strip() for p in spec.split("+")]
+        if split_spec(spec)[0][0] != "linear":
+            raise UserError(f"{name!r} needs a linear base; {spec!r} already has memory")
+        return "+".join([str(entry.component), *parts[1:]])
+    return f"{spec}+{effect}"
+
+
+def effect_specs(spec: str, effect: str) -> list[str]:
+    """The specs a candidate effect is tried as: one per form of its registry entry."""
+    return [spec_with(spec, part) for part in E.effect(effect).spec_parts()] if effect in E.EFFECTS \
+        else [spec_with(spec, effect)]
+
+
+def inner_rmse(result: FitResult, inner: float, outer: float) -> float:
+    """rmse on the rows between the ``inner`` and ``outer`` fractions of every run: training rows
+    of the user's split that the inner fit did not see."""
+    parts = []
+    for r in result.runs:
+        n = len(r.data)
+        lo, hi = int(math.floor(n * inner)), int(math.floor(n * outer))
+        if r.simulated is None or hi <= lo:
+            continue
+        e = (r.simulated - r.data.output)[lo:hi]
+        parts.append(e[np.isfinite(e)])
+    e = np.concatenate(parts) if parts else np.zeros(0)
+    return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
+
+
+def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -> str:
+    """The first spec, unless a richer one (later in ``specs``) predicts held-back training rows
+    better by RICHER_FORM_MARGIN."""
+    inner = T.INNER_SPLIT * train_fraction
+    if not 0.0 < inner < train_fraction or len(specs) == 1:
+        return specs[0]
+    scores = [inner_rmse(fit(paths, s, train_fraction=inner), inner, train_fraction) for s in specs]
+    best = min(range(1, len(specs)), key=lambda k: scores[k])
+    return specs[best] if scores[best] < (1.0 - T.RICHER_FORM_MARGIN) * scores[0] else specs[0]
+
+
+def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:
+    """``base`` refitted with ``effect`` on the user's split, in the form the data choose."""
+    if plan is not None:
+        spec, _ = calibrated_spec(paths, base.spec, effect, plan)
+        return fit(paths, spec, **kw)
+    specs = effect_specs(base.spec, effect)
+    if E.effect(effect).form_choice == "inner-split":
+        if kw.get("train") or kw.get("test"):
+            return fit(paths, specs[0], **kw)  # whole runs have roles: no training rows to hold back
+        return fit(paths, choose_by_inner_split(paths, specs, float(kw.get("train_fraction", 0.7))), **kw)
+    best: FitResult | None = None
+    for spec in specs:
+        fitted = fit(paths, spec, **kw)
+        # choose among the forms on training rows only, so the validation comparison stays fair
+        if best is None or fitted.metrics["train"]["rmse"] < best.metrics["train"]["rmse"]:
+            best = fitted
+    assert best is not None
+    return best

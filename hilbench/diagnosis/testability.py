@@ -1,0 +1,210 @@
+"""What the data can test: each effect of the registry against the data's excitation.
+
+Each effect of :data:`hilbench.effects.EFFECTS` names its requirements; :data:`REQUIREMENTS` says
+for each how it is checked and, when the data fall short, why the effect cannot be tested. Rate
+effects are judged on the training rows, where their parameters are learned: several drive
+frequencies there for rate-dependence, several frequencies or steps for dynamics and delay. With
+one training rate, dynamics and delay are calibrated across the validation rates when those allow
+it (:mod:`hilbench.diagnosis.rate_calibration`); rate-dependence, whose rate-weighted operator
+weights are linear parameters a single rate cannot fix, is then untestable.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hilbench import effects as E
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.input_motion import excitation_summary
+from hilbench.diagnosis.rate_calibration import RatePlan, rate_plan
+from hilbench.identify.fitting import FitResult
+from hilbench.models.model import split_spec
+
+
+def excitation(result: FitResult, role: str = "all") -> dict[str, Any]:
+    """:func:`excitation_summary` of the rows that train (``role="train"``) or train or validate."""
+    active = [r for r in result.runs if len(r.data) and (r.train.any() or r.validation.any())]
+    span = max(float(np.ptp(np.concatenate([r.data.input for r in active]))), 1e-12)
+    us = [r.data.input[r.train if role == "train" else (r.train | r.validation)] for r in active]
+    return excitation_summary(us, active[0].data.sample_rate_hz, span)
+
+
+def frequencies_text(ex: dict[str, Any]) -> str:
+    return (f"{ex['frequencies_hz'][0]:.3g}-{ex['frequencies_hz'][1]:.3g} Hz, spread {ex['frequency_spread']:.2f}"
+            if ex["frequencies_hz"] else "no input reversals")
+
+
+def aux_variation(runs: list[np.ndarray]) -> float:
+    """How far an auxiliary channel moves beyond its noise: the range of its moving average (1 % of
+    each run) over its sample-to-sample noise std. Pure noise gives well under 1 (the average
+    removes it); a 1.5 degC drift under 0.15 degC of noise gives 10."""
+    smooth, diffs, quantum = [], [], math.inf
+    for a in runs:
+        a = a[np.isfinite(a)]
+        if a.size < 3:
+            continue
+        k = max(1, a.size // 100)
+        smooth.append(np.convolve(a, np.ones(k) / k, mode="valid"))
+        d = np.diff(a)
+        diffs.append(d)
+        nz = np.abs(d[d != 0])
+        if nz.size:
+            quantum = min(quantum, float(nz.min()))
+    if not smooth:
+        return 0.0
+    d = np.concatenate(diffs)
+    noise = 1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)
+    if math.isfinite(quantum):
+        noise = max(noise, quantum / math.sqrt(12.0))  # a quantised, mostly constant channel
+    s = np.concatenate(smooth)
+    return float(np.ptp(s) / max(noise, 1e-12 * max(float(np.abs(s).max()), 1.0)))
+
+
+@dataclass
+class Testability:
+    """What the diagnosis tries: effects refitted on the split as is, effects whose shape is
+    calibrated across drive rates, and the untestable ones with the reason."""
+
+    tries: list[str]
+    untestable: list[dict[str, str]]
+    plan: RatePlan | None = None  # for the effects in ``calibrated``
+    calibrated: list[str] = field(default_factory=list)
+
+
+@dataclass
+class DataContext:
+    """What the requirements look at: the base model and the excitation of all and of training rows."""
+
+    base: str
+    result: FitResult
+    ex: dict[str, Any]
+    ex_train: dict[str, Any]
+    plan: RatePlan | None
+    no_plan: str
+
+    @property
+    def multi(self) -> bool:
+        return self.ex["frequency_spread"] >= T.SEVERAL_RATES_SPREAD
+
+    @property
+    def multi_train(self) -> bool:
+        return self.ex_train["frequency_spread"] >= T.SEVERAL_RATES_SPREAD
+
+    @property
+    def broadband(self) -> bool:
+        return self.multi or self.ex["steps"] > 0
+
+    @property
+    def broadband_train(self) -> bool:
+        return self.multi_train or self.ex_train["steps"] > 0
+
+    @property
+    def single(self) -> str:
+        return f"single drive frequency ({frequencies_text(self.ex)})"
+
+    @property
+    def single_train(self) -> str:
+        return (f"the training rows hold a single drive frequency ({frequencies_text(self.ex_train)}) while the "
+                f"validation rows reach {frequencies_text(self.ex)}")
+
+
+#: A requirement's verdict: None (testable), "calibrate" (testable across drive rates), or the reason.
+Verdict = str | None
+CALIBRATE = "calibrate"
+
+
+def _memoryless_base(name: str, ctx: DataContext) -> Verdict:
+    if ctx.base != "linear":
+        return f"the base {ctx.base!r} already has memory"
+    return None
+
+
+def _several_rates(name: str, ctx: DataContext) -> Verdict:
+    if not ctx.multi:
+        return f"{ctx.single}: {name} cannot be separated from hysteresis"
+    if not ctx.multi_train:
+        return (f"{ctx.single_train}: {name} cannot be separated from hysteresis in training "
+                "(train on two or more rates to test it)")
+    return None
+
+
+def _broadband(name: str, ctx: DataContext) -> Verdict:
+    if not ctx.broadband:
+        return f"{ctx.single} and no steps: a {name} phase lag at one frequency looks like loop width"
+    if not ctx.broadband_train:
+        return CALIBRATE if ctx.plan is not None else f"{ctx.single_train} and no steps, and {ctx.no_plan}"
+    return None
+
+
+def _holds(name: str, ctx: DataContext) -> Verdict:
+    if ctx.ex["longest_hold_s"] < T.CREEP_MIN_HOLD_S:
+        return (f"the input never holds still (longest hold {ctx.ex['longest_hold_s']:.3g} s): "
+                "slow drift cannot be told from hysteresis")
+    return None
+
+
+def _varying_channel(name: str, ctx: DataContext) -> Verdict:
+    ratio = aux_variation([r.data.aux[name] for r in ctx.result.runs if len(r.data)])
+    if ratio < T.AUX_MIN_VARIATION:
+        return (f"{name} barely varies (its smoothed range is {ratio:.3g}x its noise, below "
+                f"{T.AUX_MIN_VARIATION:g})")
+    return None
+
+
+#: requirement name (hilbench.effects) -> check(effect name, context)
+REQUIREMENTS: dict[str, Callable[[str, DataContext], Verdict]] = {
+    E.MEMORYLESS_BASE: _memoryless_base,
+    E.SEVERAL_RATES: _several_rates,
+    E.BROADBAND: _broadband,
+    E.HOLDS: _holds,
+    E.VARYING_CHANNEL: _varying_channel,
+}
+
+#: What a base that already contains an effect contains, for the reason text.
+_CONTAINED = {"asymmetry": "the polynomial (asymmetric) terms", "saturation": "the fractional (saturating) terms"}
+
+
+def _verdict(effect: E.Effect, name: str, ctx: DataContext) -> Verdict:
+    if ctx.base in effect.built_into:
+        return f"the base {ctx.base!r} already has {_CONTAINED.get(name, name)}"
+    calibrate = False
+    for requirement in effect.requires:
+        verdict = REQUIREMENTS[requirement](name, ctx)
+        if verdict == CALIBRATE:
+            calibrate = True
+        elif verdict is not None:
+            return verdict
+    return CALIBRATE if calibrate else None
+
+
+def testable(spec: str, result: FitResult) -> Testability:
+    """Effects to try (not in ``spec``) and the untestable ones with the reason."""
+    parts = split_spec(spec)
+    have = {name for name, _ in parts}
+    ex = excitation(result)
+    ex_train = excitation(result, "train")
+    ctx = DataContext(parts[0][0], result, ex, ex_train, None, "")
+    if not ctx.broadband_train and ctx.broadband:
+        ctx.plan, ctx.no_plan = rate_plan(result)
+    out = Testability([], [], ctx.plan)
+    channels = None
+    for r in result.runs:
+        if len(r.data):
+            channels = list(r.data.aux) if channels is None else [c for c in channels if c in r.data.aux]
+    candidates = [(e.name, e) for e in E.EFFECTS.values()] + [(c, E.AUX_CHANNEL) for c in channels or []]
+    for name, effect in candidates:
+        if name in have:
+            continue
+        verdict = _verdict(effect, name, ctx)
+        if verdict is not None and verdict != CALIBRATE:
+            out.untestable.append({"effect": name, "reason": verdict})
+            continue
+        if verdict == CALIBRATE:
+            out.calibrated.append(name)
+        out.tries.append(name)
+    return out

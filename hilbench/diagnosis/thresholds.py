@@ -1,0 +1,57 @@
+"""Every threshold of the diagnosis, in one place, with the reason for each (docs/decisions/0009).
+
+Units: gains are fractions of the validation rmse, times in s, ratios are dimensionless.
+"""
+
+from __future__ import annotations
+
+#: An effect must lower the validation rmse by more than this fraction. Below 10 % a refit with a
+#: few more parameters buys as much on held-out rows by chance on the suites' noise levels.
+MIN_GAIN = 0.10
+
+#: One-sided Wilcoxon signed-rank test on contiguous validation blocks: p below this. Blocks (not
+#: samples) because residuals are strongly autocorrelated; 1 % because every diagnosis tests up to
+#: ten candidates and a false effect costs the user a wrong model.
+P_MAX = 0.01
+
+#: Contiguous validation blocks of the signed-rank test: enough for p < 0.01 to be reachable
+#: (needs at least 7 of 7), few enough that blocks are longer than the residual's correlation.
+N_BLOCKS = 20
+
+#: The current validation rmse must exceed this multiple of the noise floor: an error at the
+#: sensor's noise has nothing left to explain.
+NOISE_FACTOR = 1.5
+
+#: A real effect is learned on one set of rows and holds on unseen rows: the validation gain must be
+#: at least this fraction of the training gain (else: more parameters, not physics) ...
+AGREE_VALIDATION_OVER_TRAIN = 0.5
+#: ... and the training gain at least this fraction of the validation gain (else: chance extrapolation).
+AGREE_TRAIN_OVER_VALIDATION = 0.25
+
+#: With a rate plan, training may not get worse than this fraction (the calibrated shape is fixed).
+TRAINING_WORSE_TOLERANCE = 0.01
+
+#: creep is significant only if the residual drifts along holds by this fraction of its rms (after
+#: the first CREEP_SETTLE_S of each hold): the physical signature, which a refit alone can fake
+#: (the creep low-pass also buys phase lag on delay or dynamics data).
+CREEP_MIN_DRIFT = 0.2
+#: A delay or a resonance settles within this time after a step; creep keeps drifting after it.
+CREEP_SETTLE_S = 0.1
+#: Creep is testable only if the input holds still at least this long somewhere.
+CREEP_MIN_HOLD_S = 0.2
+
+#: A form of an effect chosen on an inner split: the first INNER_SPLIT of the training rows fit,
+#: the rest judge; the richer form must lower that error by RICHER_FORM_MARGIN.
+INNER_SPLIT = 0.8
+RICHER_FORM_MARGIN = 0.1
+
+#: A tie on validation error is broken by the residual's pattern when signatures differ this much.
+SIGNATURE_MARGIN = 0.2
+
+#: An auxiliary channel is tried when its smoothed range exceeds this many noise stds: pure noise
+#: gives well under 1, a 1.5 degC drift under 0.15 degC of noise gives 10.
+AUX_MIN_VARIATION = 3.0
+
+#: Drive frequencies count as several when the spread (highest over lowest half-cycle frequency
+#: in time percentiles) reaches this ratio.
+SEVERAL_RATES_SPREAD = 1.5

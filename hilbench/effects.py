@@ -1,0 +1,95 @@
+"""One vocabulary of physical effects, declared once (DESIGN.md, "One vocabulary: effects").
+
+The simulated plant, the model library, the diagnosis and the compensators speak of the same
+effects by the same names. Each :class:`Effect` says, in one place:
+
+* ``plant_table``: the ``[plant.<table>]`` of a simulated rig that produces it;
+* ``component``: the model component (:mod:`hilbench.models.components`) that describes it, and
+  ``forms``: the spec variants in which the diagnosis tries it (the data choose among them, by the
+  rule ``form_choice``);
+* ``requires``: what the data must contain for the effect to be testable (names checked by
+  :mod:`hilbench.diagnosis.testability`), ``built_into``: bases that already contain it;
+* ``signature``: the residual pattern that is its evidence (:mod:`hilbench.diagnosis.evidence`),
+  and ``evidence_check``: a pattern the evidence must show before the effect may be significant.
+
+Adding an effect, or a form of one, is an entry here plus its model component (and plant table);
+the diagnosis loops over this registry and branches on no effect name (docs/decisions/0009).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: requirements on the data, checked by hilbench.diagnosis.testability
+MEMORYLESS_BASE = "memoryless-base"  # the base model has no memory of its own (``linear``)
+SEVERAL_RATES = "several-rates"  # drive frequencies spread by 1.5x or more, in training too
+BROADBAND = "broadband"  # several rates or steps; calibrated across validation rates if only there
+HOLDS = "holds"  # the input holds still long enough for slow drift to show
+VARYING_CHANNEL = "varying-channel"  # an auxiliary channel that moves well beyond its noise
+
+
+@dataclass(frozen=True)
+class Effect:
+    name: str
+    physics: str  # what it is physically, one line
+    plant_table: str | None  # [plant.<table>] of a simulated rig, None when no plant table makes it
+    component: str | None  # model component name (base or effect) that describes it
+    forms: tuple[str, ...] = ()  # spec parts the diagnosis tries; default: the name alone
+    form_choice: str = "train"  # "train": the best training fit; "inner-split": held-back training rows
+    requires: tuple[str, ...] = ()
+    built_into: tuple[str, ...] = ()  # bases that already contain the effect
+    signature: str | None = None  # residual pattern (hilbench.diagnosis.evidence.SIGNATURES)
+    evidence_check: str | None = None  # a pattern the evidence must show (hilbench.diagnosis.evidence)
+    papers: str = ""
+
+    def spec_parts(self) -> tuple[str, ...]:
+        return self.forms or (self.name,)
+
+
+#: The effects the diagnosis tries, in DESIGN.md order. Auxiliary channels (temperature, load, ...)
+#: are effects too, named by their channel: see :data:`AUX_CHANNEL`.
+EFFECTS: dict[str, Effect] = {e.name: e for e in (
+    Effect("hysteresis", "rate-independent memory", "hysteresis", "pi",
+           requires=(MEMORYLESS_BASE,), signature="direction", papers="all"),
+    Effect("asymmetry", "loops not centrally symmetric: memoryless polynomial shaping", "asymmetry", "asymmetry",
+           built_into=("mpi", "pmpi"), signature="even-input", papers="002, 004, 000"),
+    Effect("saturation", "loop flattening at large drive, on the input or on the hysteresis output", "saturation",
+           "saturation", built_into=("fpmpi",), signature="odd-input", papers="000, 001"),
+    Effect("rate-dependence", "loop width and gain change with the input rate", "rate_dependence",
+           "rate-dependence", forms=("rate-dependence(form=damping)", "rate-dependence(form=frequency)"),
+           requires=(SEVERAL_RATES,), signature="fast-vs-slow", papers="003"),
+    Effect("dynamics", "linear dynamics after the hysteresis", "dynamics", "dynamics",
+           requires=(BROADBAND,), signature="derivatives", papers="002, 000"),
+    Effect("creep", "slow drift after a change of input, spanning decades", "creep", "creep",
+           forms=("creep", "creep(form=output)"), form_choice="inner-split",
+           requires=(HOLDS,), signature="drift-on-holds", evidence_check="drift-on-holds", papers="literature"),
+    Effect("delay", "pure time delay of amplifier, sensor or DAQ", "delay", "delay",
+           requires=(BROADBAND,), signature="rate-of-change", papers="literature"),
+)}
+
+#: An auxiliary channel as an effect: the model's gain and offset follow a recorded channel.
+AUX_CHANNEL = Effect("<channel>", "dependence on a measured auxiliary channel", None, None,
+                     requires=(VARYING_CHANNEL,), signature="channel", papers="000")
+
+#: Plant tables that are effects by their channel (the plant simulates them, models read the channel).
+AUX_PLANT_TABLES = ("temperature", "load")
+
+#: Plant tables that are not effects of the actuator but of the bench around it.
+BENCH_PLANT_TABLES = {"amplifier": "amplifier"}
+
+
+def effect_of_plant_table(table: str) -> str:
+    """The effect name of a ``[plant.<table>]`` (``rate_dependence`` -> ``rate-dependence``)."""
+    for e in EFFECTS.values():
+        if e.plant_table == table:
+            return e.name
+    if table in AUX_PLANT_TABLES:
+        return table
+    if table in BENCH_PLANT_TABLES:
+        return BENCH_PLANT_TABLES[table]
+    raise KeyError(f"no effect has the plant table {table!r}")
+
+
+def effect(name: str) -> Effect:
+    """The registry entry of an effect; an auxiliary channel's name gives :data:`AUX_CHANNEL`."""
+    return EFFECTS.get(name, AUX_CHANNEL)

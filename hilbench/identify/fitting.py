@@ -1,0 +1,459 @@
+"""Fit a model spec to recordings and report training and validation error (``hilbench fit``).
+
+The orchestration between recordings, :class:`hilbench.models.Model`,
+:func:`hilbench.identify.fit_model` and :func:`hilbench.identify.metrics.metrics`:
+
+* every run of every recording is read (:func:`load_runs`); consecutive runs of one file were
+  recorded one after the other on the same actuator, so each run after a file's first carries the
+  model's memory over (``RunData.chain``), and fitting and simulation always see all runs in order;
+* rows are given roles by boolean masks: by default the first 70 % of the samples of every run
+  train and the last 30 % validate; runs named with ``train`` train entirely, runs named with
+  ``test`` validate entirely (runs in neither get all-False masks);
+* the model is fitted on the training rows (or, for :func:`evaluate`, a saved model is used as is),
+  simulated free-running over all runs, and scored with all metric keys of DESIGN.md on the
+  training rows and on the validation rows, overall and per run.
+
+Units: input in the recording's command unit (V or A), output and errors in the output unit
+(usually um), ``mse`` in its square, ``*_pct`` in percent, times in s, rates in Hz.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, Union
+
+import numpy as np
+
+from hilbench.errors import DataError, UserError
+from hilbench.identify import FitReport, fit_model
+from hilbench.identify.metrics import METRIC_KEYS, metrics
+from hilbench.models import Model, RunData, SpecError
+from hilbench.recording.hdf5 import Recording, Run
+
+PathLike = Union[str, "os.PathLike[str]"]
+#: channels that are not auxiliary inputs of a model
+NON_AUX = ("time", "input", "output", "lateness", "reference")
+ROLES = ("train", "validation")
+
+
+# -- reading ------------------------------------------------------------------------------------
+
+
+def _sha256(*arrays: np.ndarray) -> str:
+    digest = hashlib.sha256()
+    for a in arrays:
+        digest.update(np.ascontiguousarray(a, dtype="<f8").tobytes())
+    return digest.hexdigest()
+
+
+def load_runs(path: PathLike, run_names: Sequence[str] | None = None) -> list[RunData]:
+    """The runs of the recording ``path`` as :class:`RunData`, in recorded order.
+
+    ``input`` is the applied command (V or A), ``output`` the displacement (um), ``aux`` every other
+    channel except time, lateness and reference (e.g. temperature in degC, load in N),
+    ``sample_rate_hz`` in Hz. ``source`` names the file, the run, a SHA-256 of the input and output
+    samples (little-endian float64, input then output) and the run's status: a run that did not
+    complete (killed, aborted) is still usable, every recorded sample is valid.
+
+    A run recorded right after the previous one of the same sweep (attribute ``previous_run``) has
+    ``chain=True``: the model's memory carries over, as the actuator's did; the first run of a
+    sweep starts from the rig's rest value (``approach_from``). Imported runs start afresh.
+    ``run_names`` (group name, label or 1-based number) returns only those runs; give none when
+    fitting, so the memory is right.
+    """
+    recording = Recording(path)
+    selected = recording.runs if run_names is None else [recording.run(name) for name in run_names]
+    return _run_data(recording, selected)
+
+
+def _follows(run: Run, earlier: list[RunData]) -> bool:
+    """The run was recorded right after the previous one on the same actuator (same sweep)."""
+    previous = str(run.attrs.get("previous_run", ""))
+    return bool(previous) and bool(earlier) and earlier[-1].name == previous
+
+
+def _run_data(recording: Recording, selected: list[Run]) -> list[RunData]:
+    out: list[RunData] = []
+    for run in selected:
+        missing = [c for c in ("input", "output") if c not in run.channels]
+        if missing:
+            raise DataError(
+                f"run {run.name} has no {' or '.join(repr(m) for m in missing)} channel to fit "
+                f"(channels: {', '.join(run.channels) or 'none'})",
+                where=str(recording.path),
+            )
+        data = run.data()
+        source = {"file": str(recording.path), "run": run.name, "sha256": _sha256(data["input"], data["output"]),
+                  "status": run.status or "unknown"}
+        approach = run.attrs.get("approach_from")
+        out.append(RunData(
+            input=data["input"], output=data["output"],
+            aux={c: v for c, v in data.items() if c not in NON_AUX},
+            sample_rate_hz=run.sample_rate_hz, name=run.name, source=source,
+            chain=_follows(run, out),
+            approach_from=float(approach) if approach is not None and not _follows(run, out) else None,
+        ))
+    return out
+
+
+# -- roles --------------------------------------------------------------------------------------
+
+
+@dataclass
+class FitRun:
+    """One run in a fit: its data, which rows train and which validate, the model's output."""
+
+    key: str  # the name shown and matched: the group name, ``stem:group`` with several files
+    data: RunData
+    train: np.ndarray  # bool mask of training rows
+    validation: np.ndarray  # bool mask of validation rows
+    simulated: np.ndarray | None = None  # free-run model output, output unit (um)
+    metrics: dict[str, dict[str, float] | None] = field(default_factory=dict)
+
+    @property
+    def role(self) -> str:
+        """``train``, ``validation``, ``train+validation`` (split run) or ``unused``."""
+        roles = [r for r, m in (("train", self.train), ("validation", self.validation)) if m.any()]
+        return "+".join(roles) or "unused"
+
+
+def _aliases(run: RunData, stem: str, file: str, several: bool) -> set[str]:
+    name = run.name
+    names = {name, name.split("-", 1)[1] if "-" in name else name}
+    if name[:4].isdigit():
+        names.add(str(int(name[:4])))
+    if several:
+        names |= {f"{prefix}:{n}" for n in list(names) for prefix in (stem, file)}
+    return names
+
+
+def _match(selectors: Sequence[str], runs: list[FitRun], option: str) -> set[int]:
+    files = sorted({r.data.source.get("file", "") for r in runs})
+    several = len(files) > 1
+    chosen: set[int] = set()
+    for selector in selectors:
+        hits = {i for i, r in enumerate(runs)
+                if selector in _aliases(r.data, Path(r.data.source.get("file", "")).stem,
+                                        r.data.source.get("file", ""), several)}
+        if not hits:
+            available = ", ".join(r.key for r in runs) or "none"
+            raise DataError(f"no run {selector!r} in {', '.join(files)}; available runs: {available}", where=option)
+        chosen |= hits
+    return chosen
+
+
+def assign_roles(
+    runs: list[FitRun], train: Sequence[str] | None, test: Sequence[str] | None, train_fraction: float
+) -> str:
+    """Set the train/validation masks of ``runs`` in place; returns a one-line description.
+
+    No selectors: the first ``train_fraction`` of every run's samples train, the rest validate.
+    ``train`` only: the rest validate; ``test`` only: the rest train; both: runs in neither are unused.
+    """
+    n_runs = len(runs)
+    if not train and not test:
+        if not 0.0 < train_fraction <= 1.0:
+            raise UserError(f"the training fraction must be in (0, 1], got {train_fraction:g}", where="--train-fraction")
+        for r in runs:
+            idx = np.arange(len(r.data))
+            cut = int(math.floor(len(r.data) * train_fraction))
+            r.train, r.validation = idx < cut, idx >= cut
+        pct = 100.0 * train_fraction
+        return f"first {pct:g} % of each run trains, last {100.0 - pct:g} % validates"
+    train_set = _match(train or [], runs, "--train")
+    test_set = _match(test or [], runs, "--test")
+    both = train_set & test_set
+    if both:
+        raise UserError(f"run(s) {', '.join(runs[i].key for i in sorted(both))} named both in --train and --test")
+    if not train:
+        train_set = set(range(n_runs)) - test_set
+    if not test:
+        test_set = set(range(n_runs)) - train_set
+    for i, r in enumerate(runs):
+        n = len(r.data)
+        r.train = np.full(n, i in train_set)
+        r.validation = np.full(n, i in test_set)
+    return (f"runs {', '.join(runs[i].key for i in sorted(train_set)) or 'none'} train; "
+            f"runs {', '.join(runs[i].key for i in sorted(test_set)) or 'none'} validate")
+
+
+# -- the result ---------------------------------------------------------------------------------
+
+
+@dataclass
+class FitResult:
+    """A fitted (or loaded and evaluated) model with its training and validation error."""
+
+    spec: str
+    model: Model
+    runs: list[FitRun]
+    metrics: dict[str, dict[str, float]]  # {"train": {...}, "validation": {...}}, metric keys + "n"
+    split: str  # how rows were given roles, one line
+    report: FitReport | None = None  # None when the model was loaded, not fitted
+    loaded_from: str | None = None  # the model file, when evaluated without refitting
+    output_unit: str = "um"
+    input_unit: str = ""
+    notes: list[str] = field(default_factory=list)
+    date: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+
+    @property
+    def refitted(self) -> bool:
+        return self.report is not None
+
+    @property
+    def simulated(self) -> list[np.ndarray | None]:
+        """Free-run model output of every run, output unit (um)."""
+        return [r.simulated for r in self.runs]
+
+    @property
+    def fitted_on(self) -> list[dict[str, Any]]:
+        """Source dicts (file, run, sha256, status) of the runs the model was fitted on."""
+        if self.report is None:
+            return list(self.model.info.get("fitted_on", []))
+        return [dict(r.data.source) for r in self.runs if r.train.any()]
+
+    def fit_info(self) -> dict[str, Any]:
+        """The ``fit`` section: time (s), evaluations, shape parameters theta, training rmse."""
+        if self.report is None:
+            saved = dict(self.model.info.get("fit", {}))
+            return {**saved, "refitted": False, "loaded_from": self.loaded_from}
+        rep = self.report
+        return {
+            "refitted": True,
+            "seconds": rep.seconds,
+            "evaluations": rep.evaluations,
+            "starts": rep.starts,
+            "theta": dict(rep.theta),
+            "rmse": rep.rmse,
+            "n_train": rep.n_train,
+            "split": self.split,
+            "date": self.date,
+        }
+
+    def to_json(self) -> dict[str, Any]:
+        """One JSON-ready document (NaN written as null): spec, model, metrics, runs, fit, fitted_on."""
+        return finite_json({
+            "spec": self.spec,
+            "model": self.model.to_dict(),
+            "metrics": self.metrics,
+            "runs": [
+                {"name": r.key, "file": r.data.source.get("file"), "run": r.data.name, "role": r.role,
+                 "status": r.data.source.get("status"),
+                 "samples": {"train": int(r.train.sum()), "validation": int(r.validation.sum())},
+                 "metrics": r.metrics}
+                for r in self.runs
+            ],
+            "fit": self.fit_info(),
+            "fitted_on": self.fitted_on,
+            "split": self.split,
+            "units": {"input": self.input_unit, "output": self.output_unit},
+            "notes": self.notes,
+        })
+
+    def save(self, path: PathLike) -> Path:
+        """Write the fitted model as JSON: the model plus ``fitted_on``, ``metrics`` and ``fit``.
+
+        :meth:`hilbench.models.Model.load` reads it back and simulates the same output.
+        """
+        if self.report is None:
+            raise UserError("nothing was fitted: the model was loaded from a file; use --json to keep the evaluation",
+                            where="-o")
+        out = Path(path)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return self.model.save(out)
+
+
+def finite_json(value: Any) -> Any:
+    """NaN and infinities become None (strict JSON); containers are copied."""
+    if isinstance(value, dict):
+        return {k: finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+# -- fitting and evaluation ---------------------------------------------------------------------
+
+
+def _paths(path_or_paths: PathLike | Sequence[PathLike]) -> list[Path]:
+    if isinstance(path_or_paths, (str, os.PathLike)):
+        return [Path(path_or_paths)]
+    paths = [Path(p) for p in path_or_paths]
+    if not paths:
+        raise UserError("no recording given")
+    return paths
+
+
+def _read(paths: list[Path], notes: list[str]) -> tuple[list[FitRun], str, str]:
+    """All runs of all files (empty runs left out, with a note), input and output units."""
+    several = len(paths) > 1
+    runs: list[FitRun] = []
+    units: dict[str, set[str]] = {"input": set(), "output": set()}
+    for path in paths:
+        recording = Recording(path)
+        for run in recording.runs:
+            for c in units:
+                if c in run.units:
+                    units[c].add(run.units[c])
+        for data in _run_data(recording, recording.runs):
+            status = data.source["status"]
+            if len(data) == 0:
+                notes.append(f"run {data.name} of {path} has no samples")
+            elif status != "complete":
+                notes.append(f"run {data.name} of {path} is {status!r}; its {len(data)} recorded samples are used")
+            key = f"{path.stem}:{data.name}" if several else data.name
+            runs.append(FitRun(key, data, np.zeros(len(data), bool), np.zeros(len(data), bool)))
+    if not runs:
+        raise DataError(f"no runs in {', '.join(map(str, paths))}")
+    if len(units["output"]) > 1:
+        notes.append(f"runs differ in output unit: {', '.join(sorted(units['output']))}")
+    return runs, "/".join(sorted(units["input"])), "/".join(sorted(units["output"])) or "um"
+
+
+def _channels(runs: list[FitRun]) -> tuple[list[str], list[str]]:
+    """Channels present in any run, and in every run (recorded order)."""
+    union: list[str] = []
+    for r in runs:
+        for c in ["input", "output", *r.data.aux]:
+            if c not in union:
+                union.append(c)
+    common = [c for c in union if all(c in ("input", "output") or c in r.data.aux for r in runs)]
+    return union, common
+
+
+def _check_aux(model: Model, runs: list[FitRun]) -> None:
+    union, _ = _channels(runs)
+    for channel in model.aux_channels:
+        lacking = [r.key for r in runs if channel not in r.data.aux]
+        if lacking and channel in union:
+            raise DataError(f"the model needs channel {channel!r}, which runs {', '.join(lacking)} lack")
+        if lacking:
+            aux = [c for c in union if c not in ("input", "output")]
+            raise SpecError(f"the model needs channel {channel!r}, and the recording has none; "
+                            f"channels here: {', '.join(aux) or 'none'}")
+
+
+def _training_size(runs: list[FitRun]) -> int:
+    return int(sum(np.count_nonzero(r.train & np.isfinite(r.data.output)) for r in runs))
+
+
+def _active(runs: list[FitRun]) -> list[FitRun]:
+    """The runs with samples: the ones fitted and simulated (an empty run has no memory to add)."""
+    return [r for r in runs if len(r.data)]
+
+
+def _score(runs: list[FitRun], model: Model) -> dict[str, dict[str, float]]:
+    """Simulate all runs (memory chained) and compute overall and per-run metrics."""
+    for r in runs:
+        r.simulated = np.zeros(0)
+        r.metrics = {role: None for role in ROLES}
+    active = _active(runs)
+    for r, y in zip(active, model.simulate_runs([r.data for r in active])):
+        r.simulated = y
+        r.metrics = {role: (metrics(r.data.output[mask], y[mask]) if mask.any() else None)
+                     for role, mask in (("train", r.train), ("validation", r.validation))}
+    overall = {}
+    for role in ROLES:
+        masks = [getattr(r, role) for r in runs]
+        measured = np.concatenate([r.data.output[m] for r, m in zip(runs, masks)])
+        simulated = np.concatenate([r.simulated[m] for r, m in zip(runs, masks)])
+        overall[role] = metrics(measured, simulated)
+    return overall
+
+
+def _validation_note(runs: list[FitRun], notes: list[str]) -> None:
+    if not any(r.validation.any() for r in runs):
+        notes.append("no validation data: every run trains (name runs with --test to validate on them)")
+
+
+def fit(
+    path_or_paths: PathLike | Sequence[PathLike],
+    spec: str,
+    *,
+    train: Sequence[str] | None = None,
+    test: Sequence[str] | None = None,
+    train_fraction: float = 0.7,
+    progress: Callable[[str], None] | None = None,
+) -> FitResult:
+    """Fit the model ``spec`` (e.g. ``"pi"``, ``"pmpi+dynamics"``) to one or more recordings.
+
+    ``train``/``test`` name runs (group name, label or 1-based number; with several files
+    ``stem:run`` names one file's run, an unqualified name matches in every file);
+    without them the first ``train_fraction`` of every run trains and the rest validates. Raises
+    :class:`SpecError` for a spec that cannot be built (the message lists the bases, effects and
+    channels available), :class:`DataError` for an unknown run, :class:`UserError` for an empty
+    training set. ``progress`` receives one-line notes of the shape search.
+    """
+    notes: list[str] = []
+    runs, u_unit, y_unit = _read(_paths(path_or_paths), notes)
+    union, _ = _channels(runs)
+    model = Model(spec, channels=union)
+    _check_aux(model, runs)
+    split = assign_roles(runs, train, test, train_fraction)
+    if _training_size(runs) == 0:
+        available = ", ".join(f"{r.key} ({len(r.data)} samples, {r.role})" for r in runs)
+        raise UserError(f"the training set is empty ({split}): no training sample with a finite output; "
+                        f"runs: {available}")
+    _validation_note(runs, notes)
+    if progress is not None:
+        progress(f"fitting {model.spec} on {_training_size(runs)} training samples ({split})")
+    active = _active(runs)
+    report = fit_model(model, [r.data for r in active], [r.train for r in active], progress=progress)
+    overall = _score(runs, model)
+    result = FitResult(model.spec, model, runs, overall, split, report=report, output_unit=y_unit,
+                       input_unit=u_unit, notes=notes)
+    # what the model file keeps besides the model (Model.from_dict reads these keys back)
+    model.info = finite_json({"fitted_on": result.fitted_on, "metrics": overall, "fit": result.fit_info()})
+    return result
+
+
+def evaluate(
+    path_or_paths: PathLike | Sequence[PathLike],
+    model: Model,
+    *,
+    train: Sequence[str] | None = None,
+    test: Sequence[str] | None = None,
+    train_fraction: float = 0.7,
+    loaded_from: str | None = None,
+) -> FitResult:
+    """Score an already fitted ``model`` on recordings without refitting (same roles as :func:`fit`)."""
+    notes: list[str] = []
+    runs, u_unit, y_unit = _read(_paths(path_or_paths), notes)
+    _check_aux(model, runs)
+    split = assign_roles(runs, train, test, train_fraction)
+    _validation_note(runs, notes)
+    overall = _score(runs, model)
+    return FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,
+                     input_unit=u_unit, notes=notes)
+
+
+def is_model_file(text: str) -> bool:
+    """Whether ``--model`` names a saved model, not a spec: a ``.json`` path, or an existing file given
+    with a folder (``./fit.model``; a bare name like ``pi`` stays a spec even if such a file exists)."""
+    return text.lower().endswith(".json") or (Path(text).is_file() and Path(text).name != text)
+
+
+def fit_or_evaluate(
+    path_or_paths: PathLike | Sequence[PathLike],
+    spec_or_file: str,
+    **kwargs: Any,
+) -> FitResult:
+    """:func:`evaluate` a saved model when ``spec_or_file`` is a model file, else :func:`fit` the spec."""
+    if is_model_file(spec_or_file):
+        kwargs.pop("progress", None)  # nothing is searched
+        return evaluate(path_or_paths, Model.load(spec_or_file), loaded_from=spec_or_file, **kwargs)
+    return fit(path_or_paths, spec_or_file, **kwargs)
+
+
+__all__ = ["FitResult", "FitRun", "METRIC_KEYS", "assign_roles", "evaluate", "fit", "fit_or_evaluate",
+           "is_model_file", "load_runs"]

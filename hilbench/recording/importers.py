@@ -1,0 +1,568 @@
+"""Import measured data (CSV, MATLAB .mat, dSPACE ControlDesk captures) into a recording.
+
+Every source becomes one run of a hilbench recording (see DESIGN "Recording format"): channels
+``time`` (s), ``input`` (the actuator command, V or A), ``output`` (displacement, um by default) and
+any auxiliary channels. Units come from the file (a CSV header cell ``name[unit]``), from a mapping
+value (``output[um]``) or from :data:`hilbench.recording.hdf5.CANONICAL_CHANNELS`.
+
+A mapping renames source columns to channels: ``{"displacement": "output[um]", "voltage": "input[V]"}``.
+Sources are addressed by
+
+- CSV: the header name, or the 0-based column index as a string (``"1"``), the only way for files
+  without a header row;
+- plain .mat: the variable name;
+- dSPACE .mat: ``Y(n)`` (1-based, as in MATLAB) or the block name in ``Y(n).Name``
+  (``"Måling"`` for ``"Model Root"/"Måling"/"In1"``); ``X.Data`` is always ``time``.
+
+The target ``-`` drops a column. Every source is read and checked completely before the output
+file is touched, so a bad source leaves no file behind and an existing recording unchanged.
+Problems are raised as :class:`hilbench.errors.DataError`, one line naming file, line, column, value.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import os
+import re
+import tempfile
+import unicodedata
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hilbench.errors import DataError
+from hilbench.recording.hdf5 import CANONICAL_CHANNELS, RecordingWriter, check_recording
+
+TEXT_SUFFIXES = (".csv", ".tsv", ".txt")
+MAT_SUFFIXES = (".mat",)
+REQUIRED = ("input", "output")
+DROP = "-"  # mapping target that drops a column
+#: Time units a source may use, with their value in s; time is always recorded in s.
+TIME_UNITS_S = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0, "h": 3600.0}
+
+_CHANNEL_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
+_TARGET_RE = re.compile(r"\s*([^\[\]]+?)\s*(?:\[\s*([^\[\]]*?)\s*\])?\s*")
+_HEADER_RE = re.compile(r"\s*(.*?)\s*(?:\[\s*([^\[\]]*?)\s*\]|\(\s*([^()]*?)\s*\))?\s*")
+_Y_INDEX_RE = re.compile(r"[Yy]\((\d+)\)")
+
+
+@dataclass
+class ImportedRun:
+    """One source file read into memory, checked and ready to be written as a run.
+
+    ``data`` holds float64 arrays of equal length (``time`` in s); ``units`` the unit per channel;
+    ``sample_rate_hz`` in Hz.
+    """
+
+    source: Path
+    label: str
+    data: dict[str, np.ndarray]
+    units: dict[str, str]
+    descriptions: dict[str, str]
+    sample_rate_hz: float
+    sha256: str
+    excitation: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_samples(self) -> int:
+        return len(self.data["time"])
+
+
+@dataclass
+class _Column:
+    """A source column before mapping: ``key`` addresses it in a mapping, ``label`` names it in messages."""
+
+    key: str
+    label: str
+    name: str | None  # channel name it gets when not mapped (None: ignored unless mapped)
+    unit: str | None
+    values: np.ndarray | None = None  # float64, None until parsed
+    cells: list[str] | None = None  # CSV text cells, parsed lazily
+    aliases: tuple[str, ...] = ()  # other keys that address it (header text with unit, dSPACE names)
+
+
+# -- mapping ---------------------------------------------------------------------------------
+
+
+def parse_target(value: str, where: str = "--map") -> tuple[str, str | None]:
+    """Split a mapping target ``"output"`` / ``"output[um]"`` into (channel, unit or None)."""
+    if value.strip() == DROP:
+        return DROP, None
+    m = _TARGET_RE.fullmatch(value)
+    if not m or not _CHANNEL_RE.fullmatch(m.group(1)):
+        raise DataError(
+            f"{value!r} is not a channel name (expected NAME or NAME[unit], NAME of letters, digits, _ . + -)",
+            where=where,
+        )
+    return m.group(1), m.group(2)
+
+
+def parse_mapping(items: list[str]) -> dict[str, str]:
+    """Turn ``--map`` strings ``"src=dst"`` / ``"src=dst[unit]"`` / ``"src=-"`` into ``{src: dst}``."""
+    mapping: dict[str, str] = {}
+    targets: dict[str, str] = {}
+    for item in items:
+        where = f"--map {item!r}"
+        src, sep, dst = item.partition("=")
+        src = src.strip()
+        if not sep or not src or not dst.strip():
+            raise DataError("expected SRC=CHANNEL or SRC=CHANNEL[unit], e.g. 2=output[um]", where=where)
+        if src in mapping:
+            raise DataError(f"{src!r} is mapped twice", where=where)
+        name, unit = parse_target(dst, where)
+        if name != DROP:
+            if name in targets:
+                raise DataError(f"{targets[name]!r} and {src!r} are both mapped to {name!r}", where=where)
+            targets[name] = src
+        mapping[src] = name if unit is None else f"{name}[{unit}]"
+    return mapping
+
+
+# -- reading sources -------------------------------------------------------------------------
+
+
+def _sha256(raw: bytes) -> str:
+    return hashlib.sha256(raw).hexdigest()
+
+
+def _read_bytes(path: Path, where: str) -> bytes:
+    if not path.exists():
+        raise DataError("file not found", where=where)
+    if path.is_dir():
+        raise DataError("is a directory, expected a .csv or .mat file", where=where)
+    suffix = path.suffix.lower()
+    if suffix not in TEXT_SUFFIXES + MAT_SUFFIXES:
+        raise DataError(
+            f"unsupported file type {suffix or '(no extension)'!r} "
+            f"(expected {', '.join(TEXT_SUFFIXES + MAT_SUFFIXES)})",
+            where=where,
+        )
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"cannot read ({exc.strerror or exc.__class__.__name__})", where=where) from exc
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _sniff_delimiter(line: str) -> str:
+    counts = {d: line.count(d) for d in (",", ";", "\t")}
+    best = max(counts, key=lambda d: counts[d])
+    return best if counts[best] > counts[","] else ","
+
+
+def _csv_columns(raw: bytes, where: str) -> tuple[list[_Column], list[int], bool]:
+    """Split a delimited text file into columns of text cells; returns (columns, line numbers, has header)."""
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError:
+        text = raw.decode("latin-1")
+    lines = text.splitlines()
+    first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if first is None:
+        raise DataError("no data (the file is empty)", where=where)
+    reader = csv.reader(io.StringIO(text), delimiter=_sniff_delimiter(first))
+    rows: list[list[str]] = []
+    line_numbers: list[int] = []
+    for row in reader:
+        if all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
+            continue  # blank lines and # comments
+        rows.append([c.strip() for c in row])
+        line_numbers.append(reader.line_num)
+    header_cells = rows[0]
+    has_header = not all(c == "" or _is_number(c) for c in header_cells)
+    width = len(header_cells)
+    header_line = line_numbers[0]
+    if has_header:
+        rows, line_numbers = rows[1:], line_numbers[1:]
+    for row, ln in zip(rows, line_numbers):
+        if len(row) != width:
+            what = f"the header (line {header_line})" if has_header else "the first row"
+            raise DataError(f"line {ln}: {len(row)} cells, expected {width} as in {what}", where=where)
+    if not rows:
+        raise DataError("no data rows", where=where)
+
+    columns: list[_Column] = []
+    for j in range(width):
+        cells = [row[j] for row in rows]
+        if has_header:
+            m = _HEADER_RE.fullmatch(header_cells[j])
+            assert m is not None  # the pattern matches any text
+            raw_name, unit = m.group(1), m.group(2) if m.group(2) is not None else m.group(3)
+            name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", raw_name).strip("_") or None
+            if name is not None and not _CHANNEL_RE.fullmatch(name):
+                name = f"c_{name}"
+            key = raw_name if raw_name else str(j)
+            label = f"{raw_name!r}" if raw_name else f"{j}"
+            aliases = tuple({header_cells[j], str(j)} - {key})
+            columns.append(_Column(key, label, name, unit, cells=cells, aliases=aliases))
+        else:
+            columns.append(_Column(str(j), str(j), None, None, cells=cells))
+    return columns, line_numbers, has_header
+
+
+def _parse_cells(col: _Column, target: str, line_numbers: list[int], where: str) -> np.ndarray:
+    """Convert a CSV column's text cells to float64, naming line, column and value on failure."""
+    assert col.cells is not None
+    label = col.label if target == col.key else f"{col.label} (mapped to {target!r})"
+    try:
+        values = np.array(col.cells, dtype=np.float64)
+    except ValueError:
+        values = None
+    if values is None or not np.all(np.isfinite(values)):
+        for cell, ln in zip(col.cells, line_numbers):
+            if cell == "":
+                raise DataError(f"line {ln}, column {label}: empty cell, expected a number", where=where)
+            try:
+                number = float(cell)
+            except ValueError:
+                raise DataError(f"line {ln}, column {label}: {cell!r} is not a number", where=where) from None
+            if not np.isfinite(number):
+                raise DataError(f"line {ln}, column {label}: {cell!r} is not a finite number", where=where)
+    assert values is not None
+    return values
+
+
+def _display(name: str) -> str:
+    """A dSPACE block name for messages: control characters (a lost 'å') shown as '?'."""
+    return "".join("?" if unicodedata.category(ch).startswith("C") else ch for ch in name)
+
+
+def _fold(name: str) -> str:
+    """Compare names ignoring case and non-ASCII letters, which dSPACE exports often mangle to '\\x1a'."""
+    name = unicodedata.normalize("NFC", name).casefold()
+    return re.sub(r"(?:[^\x20-\x7e]|\?)+", "?", name)
+
+
+def _dspace_names(full_name: str) -> list[str]:
+    """Path components of ``"Model Root"/"Måling"/"In1"`` without quotes: ['Model Root', 'Måling', 'In1']."""
+    return [part.strip().strip('"').strip() for part in str(full_name).split("/") if part.strip()]
+
+
+def _as_1d(value: Any) -> np.ndarray | None:
+    """A real numeric 1-D (or 1xN) array as float64, else None."""
+    if not isinstance(value, np.ndarray) or value.dtype.kind not in "iufb":
+        return None
+    array = np.squeeze(value)
+    return array.astype(np.float64) if array.ndim == 1 else None
+
+
+def _mat_columns(raw: bytes, where: str) -> tuple[list[_Column], str, dict[str, Any]]:
+    """Columns of a .mat file; returns (columns, format name, extra excitation info)."""
+    import scipy.io  # imported late: scipy.io is slow to import and only needed here
+
+    try:
+        contents = scipy.io.loadmat(io.BytesIO(raw), squeeze_me=True, struct_as_record=False)
+    except NotImplementedError as exc:  # v7.3 files are HDF5
+        raise DataError(f"MATLAB v7.3 (HDF5) files are not supported; save with -v7 ({exc})", where=where) from exc
+    except Exception as exc:  # scipy raises ValueError, TypeError, MatReadError... for a corrupt file
+        raise DataError(f"not a readable MATLAB .mat file ({exc})", where=where) from exc
+    variables = {k: v for k, v in contents.items() if not k.startswith("__")}
+    captures = {
+        k: v
+        for k, v in variables.items()
+        if hasattr(v, "_fieldnames") and {"X", "Y"} <= set(v._fieldnames)
+    }
+    if len(captures) > 1:
+        names = ", ".join(captures)
+        raise DataError(f"{len(captures)} dSPACE captures ({names}); one per file is supported", where=where)
+    if captures:
+        return _dspace_columns(*next(iter(captures.items())), where=where)
+    columns = []
+    for name, value in variables.items():
+        array = _as_1d(value)
+        if array is not None:
+            label = f"variable {name!r}"
+            ok = _CHANNEL_RE.fullmatch(name) is not None
+            columns.append(_Column(name, label, name if ok else None, None, values=array))
+    return columns, "mat", {}
+
+
+def _dspace_columns(var: str, capture: Any, where: str) -> tuple[list[_Column], str, dict[str, Any]]:
+    x = capture.X
+    if isinstance(x, np.ndarray):
+        if x.size != 1:
+            raise DataError(f"capture {var!r} has {x.size} time bases X; one is supported", where=where)
+        x = x.item()
+    time = _as_1d(getattr(x, "Data", None))
+    if time is None:
+        raise DataError(f"capture {var!r}: X.Data is not a numeric vector", where=where)
+    columns = [_Column("X", "X.Data", "time", "s", values=time)]
+    ys = capture.Y if isinstance(capture.Y, np.ndarray) else np.array([capture.Y], dtype=object)
+    for i, y in enumerate(np.atleast_1d(ys), start=1):
+        parts = _dspace_names(getattr(y, "Name", ""))
+        block = parts[-2] if len(parts) >= 3 else (parts[-1] if parts else "")
+        label = f"Y({i}) {_display(block)!r}" if block else f"Y({i})"
+        data = _as_1d(getattr(y, "Data", None))
+        if data is None:
+            raise DataError(f"capture {var!r}: Y({i}).Data is not a numeric vector", where=where)
+        unit = getattr(y, "Unit", "")
+        unit = unit if isinstance(unit, str) and unit else None
+        # Addressable by any trailing path (Måling/In1, In1) or the block name alone.
+        trailing = {"/".join(parts[k:]) for k in range(len(parts))}
+        without_port = {"/".join(parts[k:-1]) for k in range(len(parts) - 1)}
+        aliases = tuple(trailing | without_port)
+        columns.append(_Column(f"Y({i})", label, None, unit, values=data, aliases=aliases))
+    info: dict[str, Any] = {"capture": var}
+    date = getattr(getattr(capture, "Capture", None), "DateTime", None)
+    if isinstance(date, str) and date:
+        info["captured"] = date
+    return columns, "dspace-mat", info
+
+
+def _resolve(columns: list[_Column], key: str, where: str, listing: str) -> _Column:
+    """The column a mapping key addresses: by key, then alias (case- and umlaut-insensitive), then index."""
+    exact = [c for c in columns if key == c.key or key in c.aliases]
+    if len(exact) == 1:
+        return exact[0]
+    folded = [c for c in columns if _fold(key) in {_fold(a) for a in (c.key, *c.aliases)}]
+    if len(folded) == 1:
+        return folded[0]
+    if len(folded) > 1:
+        names = ", ".join(c.key for c in folded)
+        raise DataError(f"--map key {key!r} matches several columns ({names}); use one of those", where=where)
+    m = _Y_INDEX_RE.fullmatch(key)
+    if m and any(c.key.startswith("Y(") for c in columns):
+        n = sum(c.key.startswith("Y(") for c in columns)
+        raise DataError(f"--map key {key!r}: the capture has only Y(1)..Y({n})", where=where)
+    raise DataError(f"--map key {key!r} matches no column (columns: {listing})", where=where)
+
+
+def _listing(columns: list[_Column], has_header: bool = True) -> str:
+    parts = []
+    for c in columns:
+        if c.cells is not None and not has_header:
+            first = c.cells[0] if c.cells else ""
+            parts.append(f"{c.key} ({first or 'empty'})")
+        else:
+            parts.append(c.label.replace("variable ", ""))
+    return ", ".join(parts) or "none"
+
+
+def _sample_rate(time: np.ndarray, where: str) -> float:
+    """Sample rate in Hz from a strictly increasing time vector in s.
+
+    The mean step is used when it agrees with the median step within 1 % (it is exact for clocks that
+    jitter by a least significant digit, as dSPACE and many loggers do); otherwise, with gaps, the median.
+    """
+    if len(time) < 2:
+        raise DataError(f"need at least 2 samples to know the sample rate, got {len(time)}", where=where)
+    median = float(np.median(np.diff(time)))
+    mean = float(time[-1] - time[0]) / (len(time) - 1)
+    return 1.0 / (mean if abs(mean / median - 1.0) < 0.01 else median)
+
+
+@dataclass
+class _Channels:
+    """Channels picked from a source: float64 data, units, descriptions and the source key of each."""
+
+    data: dict[str, np.ndarray] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)
+    descriptions: dict[str, str] = field(default_factory=dict)
+    sources: dict[str, str] = field(default_factory=dict)
+
+
+def _pick(
+    columns: list[_Column],
+    mapping: dict[str, str],
+    fmt: str,
+    line_numbers: list[int],
+    listing: str,
+    path: Path,
+    where: str,
+) -> _Channels:
+    """Apply the mapping, parse the chosen columns and give them units (time converted to s)."""
+    targets: dict[int, tuple[str, str | None]] = {}  # id(column) -> (channel, unit override)
+    for key, value in mapping.items():
+        col = _resolve(columns, key, where, listing)
+        if id(col) in targets:
+            raise DataError(f"--map: column {col.label} is mapped twice", where=where)
+        targets[id(col)] = parse_target(value, f"--map {key}={value}")
+    # In .mat files a mapping selects variables (they often hold many unrelated vectors); the time
+    # base (dSPACE X.Data, a variable named `time`) stays unless a mapping gives another one.
+    selecting = fmt != "csv" and bool(mapping)
+    mapped_names = {name for name, _ in targets.values()}
+
+    out = _Channels()
+    for col in columns:
+        mapped = id(col) in targets
+        name, unit = targets.get(id(col), (col.name, None))
+        if name == DROP or name is None:
+            continue
+        if selecting and not mapped and (name != "time" or "time" in mapped_names):
+            continue
+        if col.cells is not None and all(c == "" for c in col.cells):
+            if mapped or name in ("time", *REQUIRED):
+                raise DataError(f"column {col.label} ({name}) has no values", where=where)
+            continue  # e.g. a pandas index column written without values
+        if name in out.data:
+            raise DataError(f"two columns give channel {name!r}: {out.sources[name]} and {col.label}", where=where)
+        values = col.values if col.values is not None else _parse_cells(col, name, line_numbers, where)
+        if not np.all(np.isfinite(values)):  # only .mat data get here: CSV cells were checked one by one
+            bad = int(np.flatnonzero(~np.isfinite(values))[0])
+            raise DataError(f"{col.label} ({name}): {values[bad]} at element {bad + 1}, expected a finite number",
+                            where=where)
+        if unit is None:
+            unit = col.unit if col.unit is not None else CANONICAL_CHANNELS.get(name, ("", ""))[0]
+        description = f"imported from {path.name}, {col.label}"
+        if name == "time" and unit != "s":
+            if unit not in TIME_UNITS_S:
+                raise DataError(f"time unit {unit!r} not understood (expected one of: {', '.join(TIME_UNITS_S)})",
+                                where=where)
+            values, description, unit = values * TIME_UNITS_S[unit], f"{description}, converted from {unit} to s", "s"
+        out.data[name], out.units[name], out.descriptions[name], out.sources[name] = values, unit, description, col.key
+    return out
+
+
+def _add_time(ch: _Channels, rate_hz: float | None, line_numbers: list[int], where: str) -> float:
+    """Check the time channel, or make one from ``rate_hz``; returns the sample rate in Hz."""
+    n = len(ch.data["input"])
+    if "time" not in ch.data:
+        if rate_hz is None:
+            raise DataError("no time column: give the sample rate (--rate HZ) or map a time column", where=where)
+        ch.data["time"] = np.arange(n, dtype=np.float64) / rate_hz
+        ch.units["time"] = "s"
+        ch.descriptions["time"] = f"sample index / {rate_hz:g} Hz (the source has no time column)"
+        ch.sources["time"] = f"rate {rate_hz:g} Hz"
+        return float(rate_hz)
+    time = ch.data["time"]
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        i = int(np.flatnonzero(steps <= 0)[0]) + 1
+        source = "X.Data" if ch.sources["time"] == "X" else ch.sources["time"]
+        at = f"line {line_numbers[i]}" if line_numbers else f"{source}({i + 1})"
+        raise DataError(f"time is not strictly increasing at {at} ({time[i]:.10g} after {time[i - 1]:.10g})",
+                        where=where)
+    rate = _sample_rate(time, where)
+    if rate_hz is not None and abs(rate / rate_hz - 1.0) > 0.01:
+        raise DataError(f"the time column gives {rate:.6g} Hz but the rate given is {rate_hz:.6g} Hz; drop one",
+                        where=where)
+    return rate
+
+
+def load_source(
+    source: str | os.PathLike[str],
+    *,
+    label: str | None = None,
+    rate_hz: float | None = None,
+    mapping: dict[str, str] | None = None,
+) -> ImportedRun:
+    """Read and check one source file completely; nothing is written.
+
+    ``rate_hz`` (Hz) is needed when the source has no time column; with one, the rate comes from
+    the time stamps (s) and a ``rate_hz`` that disagrees by more than 1 % is an error.
+    """
+    path = Path(source)
+    where = str(source)
+    if rate_hz is not None and not (np.isfinite(rate_hz) and rate_hz > 0):
+        raise DataError(f"sample rate must be a positive number of Hz, got {rate_hz}", where="--rate")
+    raw = _read_bytes(path, where)
+    line_numbers: list[int] = []
+    has_header = True
+    if path.suffix.lower() in MAT_SUFFIXES:
+        columns, fmt, info = _mat_columns(raw, where)
+    else:
+        columns, line_numbers, has_header = _csv_columns(raw, where)
+        fmt, info = "csv", {}
+    listing = _listing(columns, has_header)
+    ch = _pick(columns, dict(mapping or {}), fmt, line_numbers, listing, path, where)
+
+    for required in REQUIRED:
+        if required not in ch.data:
+            raise DataError(
+                f"missing column {required!r} (columns: {listing}); map one with --map SRC={required}", where=where
+            )
+    lengths = {name: len(v) for name, v in ch.data.items()}
+    if len(set(lengths.values())) != 1:
+        detail = ", ".join(f"{ch.sources[name]} ({name}) {k}" for name, k in lengths.items())
+        raise DataError(f"channels differ in length: {detail}", where=where)
+    if lengths["input"] == 0:
+        raise DataError("no samples", where=where)
+    rate = _add_time(ch, rate_hz, line_numbers, where)
+
+    order = ["time", "input", "output"] + [k for k in ch.data if k not in ("time", "input", "output")]
+    digest = _sha256(raw)
+    excitation = {"kind": "imported", "source": path.name, "sha256": digest, "format": fmt,
+                  "channels": {k: ch.sources[k] for k in order}, **info}
+    return ImportedRun(
+        source=path,
+        label=label if label is not None else path.stem,
+        data={k: ch.data[k] for k in order},
+        units={k: ch.units[k] for k in order},
+        descriptions={k: ch.descriptions[k] for k in order},
+        sample_rate_hz=rate,
+        sha256=digest,
+        excitation=excitation,
+    )
+
+
+# -- writing ---------------------------------------------------------------------------------
+
+
+def _write(writer: RecordingWriter, run: ImportedRun, experiment: str) -> str:
+    return writer.write_run(
+        run.label,
+        run.data,
+        run.units,
+        descriptions=run.descriptions,
+        experiment=experiment,
+        excitation=run.excitation,
+        sample_rate_hz=run.sample_rate_hz,
+        extra_attrs={"source": run.source.name, "source_sha256": run.sha256},
+    )
+
+
+def import_files(
+    sources: list[str | Path],
+    output: str | Path,
+    *,
+    run_names: list[str] | None = None,
+    rate_hz: float | None = None,
+    mapping: dict[str, str] | None = None,
+    experiment: str = "import",
+) -> list[str]:
+    """Import each source as one run into the recording ``output`` (created, or appended to).
+
+    ``rate_hz`` (Hz) is used for sources without a time column; ``mapping`` maps source columns to
+    channels (see the module docstring). All sources are read and checked before ``output`` is
+    touched; a new file is written under a temporary name and renamed when complete. Returns the
+    run group names (``0003-label``).
+    """
+    if not sources:
+        raise DataError("no files to import")
+    if run_names is not None and len(run_names) != len(sources):
+        raise DataError(f"got {len(run_names)} run names for {len(sources)} files; give one per file", where="--run")
+    out = Path(output)
+    runs = [
+        load_source(src, label=None if run_names is None else run_names[i], rate_hz=rate_hz, mapping=mapping)
+        for i, src in enumerate(sources)
+    ]
+    if out.exists():
+        if out.is_dir():
+            raise DataError("is a directory, expected a recording file (.h5)", where=str(out))
+        check_recording(out)
+        writer = RecordingWriter(out)
+        return [_write(writer, run, experiment) for run in runs]
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    tmp.unlink()  # RecordingWriter creates the file itself
+    try:
+        writer = RecordingWriter(tmp)
+        names = [_write(writer, run, experiment) for run in runs]
+        os.replace(tmp, out)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return names

@@ -1,0 +1,53 @@
+"""`hilbench.diagnosis.input_motion`: holds in a noisy measured input, reversals and drive frequencies."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hilbench.diagnosis.input_motion import excitation_summary, half_cycle_frequencies, hold_band, input_noise, motion
+
+FS = 1000.0
+
+
+def _trapezoid(noise_v: float, seed: int = 0) -> np.ndarray:
+    """0 V for 1 s, a 10 ms ramp to 1000 V, held 2 s, a ramp back, held 1 s; plus sensor noise."""
+    rng = np.random.default_rng(seed)
+    parts = [np.zeros(1000), np.linspace(0, 1000, 10), np.full(2000, 1000.0), np.linspace(1000, 0, 10),
+             np.zeros(1000)]
+    u = np.concatenate(parts)
+    return u + rng.normal(0, noise_v, u.size)
+
+
+def test_input_noise_from_second_differences() -> None:
+    assert abs(input_noise(_trapezoid(1.0)) - 1.0) < 0.1
+    assert input_noise(_trapezoid(0.0)) < 1e-9
+    t = np.arange(4000) / FS
+    assert input_noise(90 * np.sin(2 * np.pi * 20 * t)) < 0.01  # a smooth digital drive: ~A (w dt)^4
+
+
+def test_noisy_holds_are_holds() -> None:
+    u = _trapezoid(1.0)
+    m = motion(u, FS, float(np.ptp(u)))
+    assert m["still"][100:1000].mean() > 0.99 and m["still"][1100:3000].mean() > 0.99
+    assert not m["still"][1001:1009].any()  # the ramp moves
+    assert abs(m["since"][2999] - 1.9) < 0.1  # held since the end of the ramp, s
+    assert set(m["direction"][1100:3000]) == {"hold"}
+    # without the dead band, noise would be read as ~1900 reversals during the hold
+    assert m["flips"].size <= 2
+    summary = excitation_summary([u], FS)
+    assert summary["longest_hold_s"] > 1.8 and summary["reversals"] <= 1
+
+
+def test_a_noisy_drive_does_not_become_holds() -> None:
+    """The dead band is capped at 1 % of the span: band-limited noise and triangles keep moving."""
+    rng = np.random.default_rng(1)
+    u = np.convolve(rng.normal(0, 1, 20000), np.ones(5) / 5, mode="same")
+    assert hold_band(u, float(np.ptp(u))) <= 0.01 * np.ptp(u) + 1e-12
+    m = motion(u, FS, float(np.ptp(u)))
+    assert m["still"].mean() < 0.2
+    tri = np.abs((np.arange(4000) % 100) - 50.0) * 2 - 50  # 10 Hz triangle, exact
+    m = motion(tri, FS, float(np.ptp(tri)))
+    assert not m["still"].any()
+    f = half_cycle_frequencies(m["flips"], FS)
+    assert np.allclose(f, 10.0)
+    assert set(np.unique(m["direction"])) == {"rising", "falling", "turning"}

@@ -1,0 +1,331 @@
+"""`hilbench fit` and hilbench.identify.fitting on simulated rigs: splits, roles, chaining, saved fits, errors."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from hilbench.cli import app
+from hilbench.errors import DataError, UserError
+from hilbench.identify.fitting import evaluate, fit, load_runs
+from hilbench.identify.metrics import METRIC_KEYS
+from hilbench.models import Model, RunData, SpecError
+from hilbench.recording.hdf5 import Recording, RecordingWriter
+from tests.conftest import MINIMAL_RIG
+
+runner = CliRunner()
+NOISE_UM = 0.01  # MINIMAL_RIG's sensor noise_std
+TEMPERATURE_RIG = MINIMAL_RIG + """
+[[sensors]]
+channel = "temperature"
+unit = "degC"
+driver = "sim"
+noise_std = 0.01
+
+[plant.temperature]
+reference_degC = 25.0
+gain_per_degC = 0.02
+strain_um_per_degC = 0.5
+trajectory = { kind = "ramp", start = 25.0, end = 35.0, duration_s = 3.0 }
+"""
+
+
+def run_ok(*args: str) -> dict:
+    result = runner.invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout, parse_constant=_no_nan)  # exactly one strict JSON document
+
+
+def _no_nan(token: str) -> None:
+    raise AssertionError(f"non-standard JSON constant {token} on stdout")
+
+
+def run_error(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    lines = result.stderr.strip().splitlines()
+    assert lines[0].startswith("error: ") and len(lines) <= 2, lines
+    return lines[0]
+
+
+def _sweep(folder: Path, rig_text: str, excitation: str, name: str) -> Path:
+    rig = folder / f"{name}.toml"
+    rig.write_text(textwrap.dedent(rig_text), encoding="utf-8")
+    out = folder / f"{name}.h5"
+    result = runner.invoke(app, ["sweep", str(rig), "-e", excitation, "-o", str(out), "-q"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+@pytest.fixture(scope="module")
+def pi_h5(tmp_path_factory) -> Path:
+    """Two 1.5 s sine runs (3 V, then 5 V) on the minimal play-operator rig: 1501 samples each."""
+    return _sweep(tmp_path_factory.mktemp("pi"), MINIMAL_RIG, "sine:amplitude=3|5,frequency_hz=2,cycles=3", "pi")
+
+
+@pytest.fixture(scope="module")
+def temperature_h5(tmp_path_factory) -> Path:
+    """One 3 s sine run while the temperature ramps 25 -> 35 degC (gain and thermal strain)."""
+    return _sweep(tmp_path_factory.mktemp("temp"), TEMPERATURE_RIG, "sine:amplitude=3,frequency_hz=2,cycles=6", "temp")
+
+
+def _copy_with_runs(src: Path, dst: Path, *, killed: bool = False, empty: bool = False) -> Path:
+    """``src`` plus an aborted run (the first 500 samples of run 1) and/or a run without samples."""
+    shutil.copy(src, dst)
+    first = Recording(dst).runs[0].data()
+    writer = RecordingWriter(dst)
+    attrs = {"experiment": "test", "excitation": "{}", "sample_rate_hz": 1000.0}
+    units = {"time": "s", "input": "V", "output": "um"}
+    if killed:
+        writer.write_run("killed", {c: first[c][:500] for c in units}, units, status="aborted",
+                         reason="interrupted by SIGINT", **attrs)
+    if empty:
+        writer.write_run("empty", {c: np.zeros(0) for c in units}, units, status="failed", reason="boom", **attrs)
+    return dst
+
+
+# -- reading runs ---------------------------------------------------------------------------------
+
+
+def test_load_runs_chains_and_hashes(pi_h5, tmp_path):
+    runs = load_runs(pi_h5)
+    assert [r.name for r in runs] == ["0001-sine-amplitude=3", "0002-sine-amplitude=5"]
+    assert [r.chain for r in runs] == [False, True]
+    assert [len(r) for r in runs] == [1501, 1501] and runs[0].sample_rate_hz == 1000.0
+    assert runs[0].aux == {}  # time is not an auxiliary channel
+    raw = Recording(pi_h5).runs[1].data()
+    digest = hashlib.sha256(raw["input"].astype("<f8").tobytes() + raw["output"].astype("<f8").tobytes()).hexdigest()
+    assert runs[1].source == {"file": str(pi_h5), "run": "0002-sine-amplitude=5", "sha256": digest,
+                              "status": "complete"}
+    assert runs[0].source["sha256"] != runs[1].source["sha256"]
+    killed = load_runs(_copy_with_runs(pi_h5, tmp_path / "k.h5", killed=True))
+    # a run appended by another writer does not follow the sweep: its memory starts afresh
+    assert killed[2].source["status"] == "aborted" and len(killed[2]) == 500 and not killed[2].chain
+    assert runs[0].approach_from == 0.0 and runs[1].approach_from is None  # the sweep began at rest
+
+
+def test_load_runs_aux_and_missing_output(temperature_h5, tmp_path):
+    (run,) = load_runs(temperature_h5)
+    assert list(run.aux) == ["temperature"]
+    assert 24.5 < run.aux["temperature"][0] < 25.5 and run.aux["temperature"][-1] > 34.0
+    bad = tmp_path / "bad.h5"
+    RecordingWriter(bad).write_run("no-output", {"time": np.arange(3.0), "input": np.ones(3)}, {"time": "s"},
+                                   experiment="t", excitation="{}", sample_rate_hz=1.0)
+    with pytest.raises(DataError, match=r"run 0001-no-output has no 'output' channel.*channels: time, input"):
+        load_runs(bad)
+
+
+# -- fitting and roles -----------------------------------------------------------------------------
+
+
+def test_default_split_all_metric_keys(pi_h5):
+    result = fit(pi_h5, "pi")
+    for r in result.runs:
+        assert r.role == "train+validation"
+        assert r.train.sum() == 1050 and r.validation.sum() == 451  # floor(0.7 * 1501)
+        assert not (r.train & r.validation).any() and r.train[:1050].all()
+        assert set(r.metrics["train"]) >= set(METRIC_KEYS) and set(r.metrics["validation"]) >= set(METRIC_KEYS)
+    for role, n in (("train", 2100), ("validation", 902)):
+        m = result.metrics[role]
+        assert set(m) == {*METRIC_KEYS, "n"} and m["n"] == n
+        assert all(np.isfinite(m[k]) for k in METRIC_KEYS)
+    assert result.report is not None and result.report.n_train == 2100
+
+
+def test_pi_recovers_plant_and_parameters(pi_h5):
+    """PI on a PI plant: validation error at the sensor noise, weights those of the plant."""
+    result = fit(pi_h5, "pi")
+    val = result.metrics["validation"]
+    assert 0.7 * NOISE_UM < val["rmse"] < 1.3 * NOISE_UM and val["mae"] < 6 * NOISE_UM
+    # plant: y = u + 0.5 play(u, 0.5 V) + 0.3 play(u, 1 V) + 0.2 play(u, 2 V); the model works in
+    # v = u / 5 V, so its weights are the plant's times 5 V, at thresholds 0.1, 0.2, 0.4
+    w = {p["name"]: p["value"] for p in result.model.to_dict()["parameters"]["weights"]}
+    assert w["p0*v"] == pytest.approx(5.0, rel=0.01)  # the r = 0 operator is the linear term
+    assert (w["w[r=0.1]"], w["w[r=0.2]"], w["w[r=0.4]"]) == pytest.approx((2.5, 1.5, 1.0), rel=0.03)
+    others = [v for k, v in w.items() if k.startswith("w[") and k not in ("w[r=0.1]", "w[r=0.2]", "w[r=0.4]")]
+    assert max(abs(v) for v in others) < 0.05
+
+
+def test_train_test_by_run_names(pi_h5):
+    result = fit(pi_h5, "pi", train=["1"], test=["sine-amplitude=5"])
+    assert [r.role for r in result.runs] == ["train", "validation"]
+    assert result.metrics["train"]["n"] == 1501 and result.metrics["validation"]["n"] == 1501
+    assert result.fitted_on == [result.runs[0].data.source]
+    assert result.metrics["validation"]["rmse"] < 1.5 * NOISE_UM
+    # the 5 V run starts with the memory the 3 V run left: without chaining its start is off by
+    # the play operators' stored output (sum of w r = 0.95 um)
+    chained = result.metrics["validation"]["mae"]
+    fresh = [RunData(r.data.input, r.data.output, r.data.aux, r.data.sample_rate_hz) for r in result.runs]
+    unchained = np.max(np.abs(result.model.simulate_runs(fresh)[1] - result.runs[1].data.output))
+    assert chained < 6 * NOISE_UM and unchained > 0.3
+    only_train = fit(pi_h5, "pi", train=["0001-sine-amplitude=3"])
+    assert [r.role for r in only_train.runs] == ["train", "validation"]
+    only_test = fit(pi_h5, "pi", test=["1"])
+    assert [r.role for r in only_test.runs] == ["validation", "train"]
+
+
+def test_empty_validation_set_is_reported_not_fatal(pi_h5):
+    doc = run_ok("fit", str(pi_h5), "--model", "pi", "--train", "1", "--train", "2", "-q")
+    assert doc["metrics"]["validation"]["n"] == 0 and doc["metrics"]["validation"]["rmse"] is None
+    assert any("no validation data" in n for n in doc["notes"])
+    assert doc["metrics"]["train"]["n"] == 3002
+
+
+def test_aux_channel_effect_fits_temperature(temperature_h5):
+    plain = fit(temperature_h5, "pi")
+    with_t = fit(temperature_h5, "pi+temperature")
+    assert with_t.model.aux_channels == ["temperature"]
+    assert plain.metrics["validation"]["rmse"] > 0.5
+    assert with_t.metrics["validation"]["rmse"] < 3 * NOISE_UM
+
+
+def test_killed_and_empty_runs_are_used_or_skipped(pi_h5, tmp_path):
+    path = _copy_with_runs(pi_h5, tmp_path / "ke.h5", killed=True, empty=True)
+    result = fit(path, "pi")
+    assert [r.role for r in result.runs] == ["train+validation"] * 3 + ["unused"]
+    assert result.runs[2].metrics["validation"]["n"] == 150 and result.runs[3].metrics == {
+        "train": None, "validation": None}
+    assert any("'aborted'" in n for n in result.notes) and any("no samples" in n for n in result.notes)
+
+
+def test_several_files(pi_h5, temperature_h5):
+    result = fit([pi_h5, temperature_h5], "pi", train=["pi:1", "pi:2"], test=["temp:sine"])
+    assert [r.key for r in result.runs] == ["pi:0001-sine-amplitude=3", "pi:0002-sine-amplitude=5", "temp:0001-sine"]
+    assert [r.data.chain for r in result.runs] == [False, True, False]  # memory does not cross files
+    assert [r.role for r in result.runs] == ["train", "train", "validation"]
+
+
+# -- saved fits --------------------------------------------------------------------------------------
+
+
+def test_saved_fit_loads_and_evaluates_without_refitting(pi_h5, tmp_path):
+    fit_json = tmp_path / "fit.json"
+    fitted = run_ok("fit", str(pi_h5), "--model", "pi+delay", "-o", str(fit_json), "-q")
+    assert fitted["fit"]["refitted"] is True and fitted["fit"]["evaluations"] > 1
+    saved = json.loads(fit_json.read_text(encoding="utf-8"))
+    assert saved["spec"] == "pi+delay" and saved["metrics"] == fitted["metrics"]
+    assert [s["run"] for s in saved["fitted_on"]] == ["0001-sine-amplitude=3", "0002-sine-amplitude=5"]
+    assert all(len(s["sha256"]) == 64 for s in saved["fitted_on"])
+    assert [(p["name"], p["unit"]) for p in saved["parameters"]["shape"]] == [("seconds", "s")]
+    assert {w["unit"] for w in saved["parameters"]["weights"]} == {"um"}
+
+    loaded = run_ok("fit", str(pi_h5), "--model", str(fit_json), "-q")
+    assert loaded["fit"]["refitted"] is False and loaded["fit"]["loaded_from"] == str(fit_json)
+    assert loaded["fit"]["seconds"] == fitted["fit"]["seconds"]  # the original fit's, not a new one
+    assert loaded["fitted_on"] == saved["fitted_on"]
+    for role in ("train", "validation"):
+        for key in METRIC_KEYS:
+            assert loaded["metrics"][role][key] == pytest.approx(fitted["metrics"][role][key], rel=1e-9, abs=1e-12)
+
+
+def test_saved_model_reproduces_the_simulation(pi_h5, tmp_path):
+    original = fit(pi_h5, "pi+delay", train=["1"])
+    path = original.save(tmp_path / "fit.json")
+    model = Model.load(path)
+    assert model.info["fitted_on"] == [original.runs[0].data.source]
+    assert model.info["metrics"]["validation"]["rmse"] == original.metrics["validation"]["rmse"]
+    assert model.info["fit"]["evaluations"] == original.report.evaluations
+    again = evaluate(pi_h5, model, train=["1"])
+    for a, b in zip(original.simulated, again.simulated):
+        assert a is not None and b is not None and a.shape == (1501,)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-9)
+
+
+def test_output_refused_for_a_loaded_model(pi_h5, tmp_path):
+    fit_json = tmp_path / "fit.json"
+    run_ok("fit", str(pi_h5), "--model", "pi", "-o", str(fit_json), "-q")
+    assert Model.load(fit_json).spec == "pi"
+    line = run_error("fit", str(pi_h5), "--model", str(fit_json), "-o", str(tmp_path / "again.json"))
+    assert "-o" in line and "not refitted" in line and not (tmp_path / "again.json").exists()
+
+
+# -- CLI output ----------------------------------------------------------------------------------------
+
+
+def test_json_document(pi_h5):
+    doc = run_ok("fit", str(pi_h5), "--model", "pi", "--train", "1", "--test", "2", "-q")
+    assert {"spec", "model", "metrics", "runs", "fit", "fitted_on"} <= set(doc)
+    assert doc["spec"] == "pi" and doc["model"]["format"] == "hilbench-model"
+    assert set(doc["metrics"]) == {"train", "validation"}
+    assert all(set(doc["metrics"][r]) >= set(METRIC_KEYS) for r in ("train", "validation"))
+    assert [(r["name"], r["role"]) for r in doc["runs"]] == [("0001-sine-amplitude=3", "train"),
+                                                            ("0002-sine-amplitude=5", "validation")]
+    assert doc["runs"][0]["metrics"]["validation"] is None and doc["runs"][1]["metrics"]["train"] is None
+    assert {"seconds", "evaluations", "theta"} <= set(doc["fit"])
+    assert [s["run"] for s in doc["fitted_on"]] == ["0001-sine-amplitude=3"]
+
+
+def test_human_table(pi_h5):
+    result = runner.invoke(app, ["fit", str(pi_h5), "--model", "pi+delay", "-q"])
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("metric"))
+    assert lines[header].split() == ["metric", "train", "validation"]
+    rows = [line.split() for line in lines[header + 1 : header + 1 + len(METRIC_KEYS)]]
+    assert [r[0] for r in rows] == list(METRIC_KEYS) and all(len(r) == 4 for r in rows)
+    assert any(line.split()[:2] == ["delay", "seconds"] and line.endswith(" s") for line in lines)
+    assert lines[-1].startswith("fit: ") and result.stderr == ""
+
+
+def test_plot(pi_h5, tmp_path):
+    png = tmp_path / "fit.png"
+    doc = run_ok("fit", str(pi_h5), "--model", "pi", "--plot", str(png), "-q")
+    assert doc["png"] == str(png)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+# -- bad input: one line, exit 2 -------------------------------------------------------------------------
+
+
+def test_unknown_model_name(pi_h5):
+    line = run_error("fit", str(pi_h5), "--model", "pi+hysterisis")
+    assert "'hysterisis'" in line and "pmpi" in line and "rate-dependence" in line and "dynamics" in line
+    line = run_error("fit", str(pi_h5), "--model", "pii")
+    assert "unknown base model 'pii'" in line and "bouc-wen" in line
+
+
+def test_aux_effect_without_its_channel(pi_h5, temperature_h5):
+    line = run_error("fit", str(pi_h5), "--model", "pi+temperature")
+    assert "no channel 'temperature'" in line and "channels here: none" in line
+    line = run_error("fit", str(temperature_h5), "--model", "pi+load")
+    assert "no channel 'load'" in line and "channels here: temperature" in line
+    with pytest.raises(SpecError):
+        fit(pi_h5, "pi+temperature")
+
+
+def test_saved_aux_model_on_data_without_the_channel(pi_h5, temperature_h5, tmp_path):
+    fit_json = tmp_path / "t.json"
+    run_ok("fit", str(temperature_h5), "--model", "pi+temperature", "-o", str(fit_json), "-q")
+    line = run_error("fit", str(pi_h5), "--model", str(fit_json))
+    assert "needs channel 'temperature'" in line and "channels here: none" in line
+
+
+def test_empty_training_set(pi_h5, tmp_path):
+    line = run_error("fit", str(pi_h5), "--model", "pi", "--test", "1", "--test", "2")
+    assert "training set is empty" in line and "0001-sine-amplitude=3" in line
+    path = _copy_with_runs(pi_h5, tmp_path / "e.h5", empty=True)
+    line = run_error("fit", str(path), "--model", "pi", "--train", "empty")
+    assert "training set is empty" in line and "0003-empty (0 samples" in line
+    with pytest.raises(UserError, match="training set is empty"):
+        fit(path, "pi", train=["3"])
+
+
+def test_unknown_run_name(pi_h5):
+    line = run_error("fit", str(pi_h5), "--model", "pi", "--train", "sine-amplitude=4")
+    assert "--train: no run 'sine-amplitude=4'" in line
+    assert "available runs: 0001-sine-amplitude=3, 0002-sine-amplitude=5" in line
+    line = run_error("fit", str(pi_h5), "--model", "pi", "--train", "1", "--test", "1")
+    assert "both in --train and --test" in line
+
+
+def test_missing_model_file(pi_h5, tmp_path):
+    line = run_error("fit", str(pi_h5), "--model", str(tmp_path / "nothere.json"))
+    assert "nothere.json: file not found" in line
