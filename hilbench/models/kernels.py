@@ -19,11 +19,39 @@ __all__ = [
     "mplay_block",
     "duhem_w_block",
     "bouc_wen_block",
+    "bouc_wen_update",
     "lowpass_block",
     "turning_point_frequency",
     "N_TP",
     "fractional_delay",
 ]
+
+
+@njit(cache=True, inline="always")
+def bouc_wen_update(z: float, du: float, beta: float, gamma: float, n: float) -> float:
+    """One sample of :func:`bouc_wen_block`: z after an input change du (the step function)."""
+    if du != 0.0:
+        if n == 1.0:
+            s = 1.0 if du > 0.0 else -1.0
+            sig = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else s)
+            kk = beta * s + gamma * sig
+            if abs(kk * du) < 1e-9:
+                z_new = z + du * (1.0 - kk * z)
+            else:
+                z_eq = 1.0 / kk
+                z_new = z_eq + (z - z_eq) * math.exp(-kk * du)
+            if z_new * sig >= 0.0:
+                return z_new
+        h = du / 8.0
+        ah = abs(h)
+        for _ in range(8):
+            az = abs(z)
+            f1 = h - beta * ah * (az ** (n - 1.0)) * z - gamma * h * az**n
+            zm = z + 0.5 * f1
+            azm = abs(zm)
+            f2 = h - beta * ah * (azm ** (n - 1.0)) * zm - gamma * h * azm**n
+            z = z + f2
+    return z
 
 
 @njit(cache=True)
@@ -38,31 +66,7 @@ def bouc_wen_block(u: np.ndarray, beta: float, gamma: float, n: float, state: np
     z = state[0]
     u_prev = state[1]
     for k in range(u.shape[0]):
-        du = u[k] - u_prev
-        if du != 0.0:
-            done = False
-            if n == 1.0:
-                s = 1.0 if du > 0.0 else -1.0
-                sig = 1.0 if z > 0.0 else (-1.0 if z < 0.0 else s)
-                kk = beta * s + gamma * sig
-                if abs(kk * du) < 1e-9:
-                    z_new = z + du * (1.0 - kk * z)
-                else:
-                    z_eq = 1.0 / kk
-                    z_new = z_eq + (z - z_eq) * math.exp(-kk * du)
-                if z_new * sig >= 0.0:
-                    z = z_new
-                    done = True
-            if not done:
-                h = du / 8.0
-                ah = abs(h)
-                for _ in range(8):
-                    az = abs(z)
-                    f1 = h - beta * ah * (az ** (n - 1.0)) * z - gamma * h * az**n
-                    zm = z + 0.5 * f1
-                    azm = abs(zm)
-                    f2 = h - beta * ah * (azm ** (n - 1.0)) * zm - gamma * h * azm**n
-                    z = z + f2
+        z = bouc_wen_update(z, u[k] - u_prev, beta, gamma, n)
         u_prev = u[k]
         out[k] = z
     state[0] = z

@@ -1,9 +1,12 @@
 """The simulated plant: physics composed from the effect tables of a rig config.
 
 :class:`Plant` turns the validated ``[plant]`` tables into the parameter and state arrays of
-:func:`hilbench.sim.kernels.plant_block` and runs it in block mode (:meth:`Plant.simulate`) or step
-mode (:meth:`Plant.step`). Both draw the sensor noise from the same seeded stream in the same order,
-so a run is reproducible and block and step mode give the same samples.
+:func:`hilbench.sim.kernels.plant_step` (views of one flat buffer) and runs it in block mode
+(:meth:`Plant.simulate`, :func:`~hilbench.sim.kernels.plant_block`) or step mode (:meth:`Plant.step`,
+and :meth:`Plant.step_value`, the fast path: one numba call, well under a microsecond). Step mode
+takes the sensor noise and the temperature/load trajectories from batches prepared ahead from the
+same seeded streams; block mode uses up a batch's remaining draws first, so a run is reproducible
+and block and step mode, in any mix, give the same samples.
 """
 
 from __future__ import annotations
@@ -14,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from hilbench.config import RigConfig, SensorConfig
+from hilbench.sim.schema import SensorModel
 from hilbench.errors import ConfigError
 from hilbench.sim import kernels as K
 from hilbench.sim import trajectories
@@ -50,17 +53,18 @@ class PlantOutput:
 class Plant:
     """A simulated actuator with its amplifier and sensors."""
 
-    def __init__(self, plant: dict[str, dict[str, Any]], sample_rate_hz: float, sensors: list[SensorConfig], seed: int = 0):
+    def __init__(self, plant: dict[str, dict[str, Any]], sample_rate_hz: float, sensors: list[Any], seed: int = 0):
         self.tables = plant
         self.sample_rate_hz = float(sample_rate_hz)
-        self.sensors = {s.channel: s for s in sensors}
+        self.sensors = {s.channel: SensorModel.of(s) for s in sensors}
         self.seed = seed
         self.S = np.zeros(K.N_SCALARS)
         self._build()
         self.reset()
 
     @classmethod
-    def from_rig(cls, rig: RigConfig) -> Plant:
+    def from_rig(cls, rig: Any) -> Plant:
+        """From a rig config (any object with ``plant``, ``sample_rate_hz``, ``sensors``, ``seed``, ``path``)."""
         try:
             return cls(rig.plant, rig.sample_rate_hz, rig.sensors, rig.seed)
         except ConfigError as exc:
@@ -177,26 +181,94 @@ class Plant:
         S[K.S_RANGE_LO], S[K.S_RANGE_HI] = out.range if out.range is not None else (-math.inf, math.inf)
         S[K.S_RANGE_NAN] = 1.0 if out.out_of_range == "nan" else 0.0
 
+    #: samples of noise and trajectories prepared at once for step mode
+    STEP_BATCH = 1024
+
     def reset(self) -> None:
         """Back to the virgin state: operators at zero, filters empty, noise stream restarted."""
-        self.X = np.zeros(K.N_STATES)
-        self.op_state = np.zeros(self.op_r.shape[0])
-        self.creep_state = np.zeros(self.creep_g.shape[0])
-        self.dyn_state = np.zeros(max(len(self.dyn_a) - 1, 1))
-        self.delay_buf = np.zeros(max(self.delay_samples, 1))
-        self.tp_state = np.zeros(K.N_TP)
-        self.time_s = 0.0  # time of the next sample on the current run's clock
+        self._pack()
         self.samples = 0
         self._rng_output = np.random.default_rng([self.seed, 1])
         # One stream per channel, so block and step mode draw each channel's noise in the same order.
         self._rng_aux = {c: np.random.default_rng([self.seed, 2, k]) for k, c in enumerate(sorted(self.sensors))}
+        # Step mode reads the sensor noise and the temperature/load trajectories from a batch prepared
+        # ahead (columns pos..STEP_BATCH-1 not used yet); block mode takes the batch's unused noise first,
+        # so both draw each stream in the same order.
+        self._aux_rows = {}
+        for channel in ("temperature", "load", "current"):
+            sensor = self.sensors.get(channel)
+            if sensor is not None and (channel == "current" or channel in self.tables):
+                self._aux_rows[channel] = K.B_LOAD + 1 + len(self._aux_rows)
+        self._batch = np.zeros((K.B_LOAD + 1 + len(self._aux_rows), self.STEP_BATCH))
+        self._pos = self.STEP_BATCH  # empty
+
+    def _pack(self) -> None:
+        """Parameters and fresh state as views of one flat buffer (see :data:`K.PLANT_ARRAYS`)."""
+        arrays = {name: getattr(self, name) for name in K.PLANT_ARRAYS[:16]}
+        arrays["X"] = np.zeros(K.N_STATES)
+        arrays["op_state"] = np.zeros(self.op_r.shape[0])
+        arrays["creep_state"] = np.zeros(self.creep_g.shape[0])
+        arrays["dyn_state"] = np.zeros(max(len(self.dyn_a) - 1, 1))
+        arrays["delay_buf"] = np.zeros(max(self.delay_samples, 1))
+        arrays["tp_state"] = np.zeros(K.N_TP)
+        arrays["out"] = np.zeros(2)
+        sizes = [arrays[name].shape[0] for name in K.PLANT_ARRAYS]
+        ends = np.cumsum(sizes)
+        self._layout = np.ravel(np.column_stack([ends - sizes, ends])).astype(np.int64)
+        self._flat = np.zeros(int(ends[-1]))
+        for k, name in enumerate(K.PLANT_ARRAYS):
+            view = self._flat[self._layout[2 * k] : self._layout[2 * k + 1]]
+            view[:] = np.asarray(arrays[name], dtype=np.float64)
+            setattr(self, name, view)
+        self._out = self.out
+
+    def step_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(F, L)`` for :func:`hilbench.sim.kernels.plant_step_flat` (e.g. in a compiled closed
+        loop); the plant's parameters and state, shared with this object."""
+        return self._flat, self._layout
+
+    @property
+    def time_s(self) -> float:
+        """Time of the next sample on the current run's clock, s."""
+        return self.samples / self.sample_rate_hz
 
     def start_run(self) -> None:
         """Restart the run clock (trajectories of temperature and load start again); memory stays."""
-        self.time_s = 0.0
         self.samples = 0
+        if self._pos < self.STEP_BATCH:
+            self._fill_trajectories(self._pos)
 
     # -- simulation -------------------------------------------------------------------------------
+    def _trajectory(self, name: str, t: np.ndarray) -> np.ndarray:
+        return trajectories.evaluate(self.tables[name]["trajectory"], t)
+
+    def _fill_trajectories(self, first: int) -> None:
+        """Temperature and load of the batch's columns first.. (sample ``self.samples`` at ``first``)."""
+        if "temperature" in self.tables or "load" in self.tables:
+            t = (self.samples + np.arange(self.STEP_BATCH - first)) / self.sample_rate_hz
+            if "temperature" in self.tables:
+                self._batch[K.B_TEMPERATURE, first:] = self._trajectory("temperature", t)
+            if "load" in self.tables:
+                self._batch[K.B_LOAD, first:] = self._trajectory("load", t)
+
+    def _refill(self) -> None:
+        """The next STEP_BATCH samples' noise (same streams, same order as block mode) and trajectories."""
+        n = self.STEP_BATCH
+        if self.S[K.S_NOISE_STD] > 0:
+            self._batch[K.B_NOISE] = self._rng_output.standard_normal(n)
+        for channel, row in self._aux_rows.items():
+            if self.sensors[channel].noise_std > 0:
+                self._batch[row] = self._rng_aux[channel].standard_normal(n)
+        self._fill_trajectories(0)
+        self._pos = 0
+
+    def _draw(self, rng: np.random.Generator, row: int, n: int) -> np.ndarray:
+        """n standard-normal draws of a stream: the step batch's unused ones first."""
+        k = min(n, self.STEP_BATCH - self._pos)
+        if k == n:
+            return self._batch[row, self._pos : self._pos + n].copy()
+        return np.concatenate([self._batch[row, self._pos :], rng.standard_normal(n - k)])
+
     def simulate(self, command: np.ndarray) -> PlantOutput:
         """Block mode: simulate len(command) samples from the current state."""
         u = np.ascontiguousarray(command, dtype=np.float64)
@@ -205,10 +277,13 @@ class Plant:
         if "temperature" in self.tables or "load" in self.tables:  # the run clock only when needed
             t = (self.samples + np.arange(n)) / self.sample_rate_hz
             if "temperature" in self.tables:
-                temperature = trajectories.evaluate(self.tables["temperature"]["trajectory"], t)
+                temperature = self._trajectory("temperature", t)
             if "load" in self.tables:
-                load = trajectories.evaluate(self.tables["load"]["trajectory"], t)
-        noise = self._rng_output.standard_normal(n) if self.S[K.S_NOISE_STD] > 0 else np.zeros(n)
+                load = self._trajectory("load", t)
+        noise = self._draw(self._rng_output, K.B_NOISE, n) if self.S[K.S_NOISE_STD] > 0 else np.zeros(n)
+        aux_noise = {channel: self._draw(self._rng_aux[channel], row, n)
+                     for channel, row in self._aux_rows.items() if self.sensors[channel].noise_std > 0}
+        self._pos = min(self.STEP_BATCH, self._pos + n)
         measured = np.empty(n)
         true = np.empty(n)
         drive = np.empty(n)
@@ -219,21 +294,51 @@ class Plant:
             self.delay_buf, self.tp_state, measured, true, drive,
         )
         self.samples += n
-        self.time_s = self.samples / self.sample_rate_hz
         aux: dict[str, np.ndarray] = {}
         for channel, truth in (("temperature", temperature), ("load", load), ("current", drive)):
             sensor = self.sensors.get(channel)
             if sensor is not None:
-                aux[channel] = self._read_aux(sensor, truth)
+                aux[channel] = self._read_aux(sensor, truth, aux_noise.get(channel))
         return PlantOutput(measured, true, drive, aux)
 
-    def step(self, command: float) -> PlantOutput:
-        """Step mode: one sample through the same kernel."""
-        return self.simulate(np.array([command], dtype=np.float64))
+    def step_value(self, command: float) -> float:
+        """Step mode, fast path: one sample through :func:`K.plant_step`; the measured output, um.
 
-    def _read_aux(self, sensor: SensorConfig, truth: np.ndarray) -> np.ndarray:
-        if sensor.noise_std > 0:
-            value = truth + sensor.noise_std * self._rng_aux[sensor.channel].standard_normal(truth.shape[0])
+        The same samples as :meth:`simulate` (and :meth:`step`); the auxiliary sensors' noise is
+        drawn but their readings are not formed (use :meth:`step` for them).
+        """
+        pos = self._pos
+        if pos == self.STEP_BATCH:
+            self._refill()
+            pos = 0
+        y = _plant_step_flat(self._flat, self._layout, self._batch, pos, command)
+        self._pos = pos + 1
+        self.samples += 1
+        return y
+
+    def step(self, command: float) -> PlantOutput:
+        """Step mode: one sample through the same per-sample kernel as :meth:`simulate`."""
+        measured = self.step_value(float(command))
+        pos = self._pos - 1
+        out = self._out
+        aux: dict[str, np.ndarray] = {}
+        for channel, sensor in self.sensors.items():
+            if channel == "current":
+                truth = out[1]
+            elif channel in ("temperature", "load"):
+                if channel not in self.tables:
+                    aux[channel] = _EMPTY.copy()
+                    continue
+                truth = self._batch[K.B_TEMPERATURE if channel == "temperature" else K.B_LOAD, pos]
+            else:
+                continue
+            noise = self._batch[self._aux_rows[channel], pos]
+            aux[channel] = np.array([_read_scalar(sensor, float(truth), float(noise))])
+        return PlantOutput(np.array([measured]), np.array([out[0]]), np.array([out[1]]), aux)
+
+    def _read_aux(self, sensor: SensorModel, truth: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        if sensor.noise_std > 0 and noise is not None and noise.shape[0] == truth.shape[0]:
+            value = truth + sensor.noise_std * noise
         else:
             value = truth.copy()
         if sensor.quantization > 0:
@@ -245,6 +350,21 @@ class Plant:
             else:
                 value = np.clip(value, lo, hi)
         return value
+
+
+_plant_step_flat = K.plant_step_flat
+
+
+def _read_scalar(sensor: SensorModel, truth: float, noise: float) -> float:
+    """:meth:`Plant._read_aux` of one sample (the same arithmetic, so the same value)."""
+    value = truth + sensor.noise_std * noise if sensor.noise_std > 0 else truth
+    if sensor.quantization > 0:
+        value = sensor.quantization * math.floor(value / sensor.quantization + 0.5)
+    if sensor.range is not None:
+        lo, hi = sensor.range
+        if value < lo or value > hi:
+            value = math.nan if sensor.out_of_range == "nan" else min(max(value, lo), hi)
+    return value
 
 
 def dead_zone_operators(mu: list[float], n: int) -> tuple[np.ndarray, np.ndarray]:
