@@ -1,0 +1,345 @@
+"""Paper 000's online identifier: FPMPI front end + online IIR filter (OIIR) identified by RLS.
+
+Per sample k (one numba step function, :func:`oiir_step`; :func:`oiir_block` loops over it, so
+block mode and step mode give identical results):
+
+1. FPMPI front end (000 eq. 1-5), parameters fixed by an offline fit: the normalised input
+   ``v = u / u_scale`` is shaped by the fractional polynomial ``x = sum_i w_P,i sgn(v)|v|^e_i``
+   (eq. 4-5: e = 0, 1, 2, 1/2, 3, 1/3, 4, 1/4), then drives one-sided play operators
+   (eq. 1, ``hilbench.sim.kernels.mplay_block`` with eta = 0, the operator of the plant and of
+   :class:`hilbench.models.Model`), and ``u_r = offset + sum_i w_H,i H_ri[x]`` (eq. 2, 4).
+2. Regressor shift (eq. 11, measured outputs):
+   ``phi(k) = [u_r(k), ..., u_r(k-M), y(k-1), ..., y(k-N)]``,
+   weights ``w = [p_0, ..., p_M, q_1, ..., q_N]`` (eq. 9), i.e.
+   ``y_m(k) = sum_{i=0..M} p_i u_r(k-i) + sum_{j=1..N} q_j y(k-j)`` (eq. 6:
+   ``G = P(z^-1) / (1 - Q(z^-1))``). Index choices, as printed in eq. 6, 8, 9, 11: the numerator
+   starts at lag 0 (u_r(k) enters the prediction of y(k): a direct feed-through term p_0, which the
+   identifier sets near zero when the plant has a delay), M is the numerator order and N the
+   denominator order (000 sec. 4.1 uses M = 3, N = 5: p_0..p_3 and q_1..q_5 as in Fig. 10c-d), so
+   there are K = M + N + 1 weights. The paper calls eq. 10 the "output error" and eq. 7 the
+   "equation error"; it is the other way round in the usual terms: eq. 10/11, implemented here,
+   regress on measured outputs (equation error), which keeps the least-squares problem quadratic.
+   ``bias=True`` appends a constant regressor 1 (not in the paper): an output offset, e.g. a load's
+   compliance or a thermal strain, then need not be explained through the loop gain.
+3. RLS update (eq. 12-13) by :func:`hilbench.online.rls.rls_step` (directional forgetting,
+   symmetric covariance update, trace cap, NaN and outlier guards): the returned a-priori
+   prediction ``w(k-1)' phi(k)`` is the online model output y_m(k) whose error 000 eq. 18 measures.
+4. The measured y(k) enters the output history, except when the RLS rejected it (non-finite
+   or outlier): then the value the RLS believes (its prediction, or the Huber-clipped
+   measurement) goes in, so a sensor spike does not poison the next N regressors.
+
+A non-finite input sample is replaced by the previous input (the actuator holds its last command)
+and counted; the operators never see NaN. The regressor history starts in steady state at the
+first sample (all u_r lags = u_r(0), all y lags = y(0)), as ``lfilter_zi`` starts a filter, for
+the predictions of the first max(M, N) samples only: the RLS is updated from the first sample
+whose regressor holds measured data alone.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from hilbench.online import rls as R
+from hilbench.sim.kernels import mplay_block
+
+__all__ = ["OIIR", "FPMPIFrontEnd", "oiir_step", "oiir_block", "re_n2_pct", "re_ninf_pct"]
+
+# -- front-end scalar parameters (fe) -----------------------------------------------------------
+F_U_SCALE = 0  # command units per normalised unit (v = u / u_scale)
+F_OFFSET = 1  # constant term of u_r
+N_FE = 2
+
+# -- OIIR scalar state (xs) ---------------------------------------------------------------------
+X_STARTED = 0
+X_U_PREV = 1  # last finite input, command units
+X_INPUT_HELD = 2  # non-finite inputs replaced by the previous one (count)
+X_FILLED = 3  # samples seen, up to max(M, N): the regressor holds only measured data after that
+N_XS = 4
+
+# -- OIIR integer layout (dims) -------------------------------------------------------------------
+D_M = 0  # numerator order M: u_r(k) .. u_r(k-M)
+D_N = 1  # denominator order N: y(k-1) .. y(k-N)
+D_BIAS = 2  # 1: a constant regressor is appended
+
+
+@njit(cache=True, inline="always")
+def _sgnpow(x: float, e: float) -> float:
+    """sgn(x) |x|^e with 0^0 = 1; the exponents of 000 eq. 5 take exact fast paths."""
+    if e == 0.0:
+        return 1.0
+    a = abs(x)
+    if e == 1.0:
+        p = a
+    elif e == 2.0:
+        p = a * a
+    elif e == 3.0:
+        p = a * a * a
+    elif e == 4.0:
+        p = (a * a) * (a * a)
+    elif e == 0.5:
+        p = math.sqrt(a)
+    elif e == 0.25:
+        p = math.sqrt(math.sqrt(a))
+    else:
+        p = a**e
+    return p if x >= 0.0 else -p
+
+
+@njit(cache=True, inline="always")
+def fpmpi_step(
+    u: float, fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
+    ops: np.ndarray, xbuf: np.ndarray, opbuf: np.ndarray,
+) -> float:
+    """FPMPI output u_r for one input sample u (command units); operator states ``ops`` updated.
+
+    ``xbuf`` (1,) and ``opbuf`` (1, n_ops) are work buffers: the operators are the shared
+    ``mplay_block`` kernel run on a one-sample block.
+    """
+    v = u / fe[F_U_SCALE]
+    x = 0.0
+    for i in range(exps.shape[0]):
+        x += w_p[i] * _sgnpow(v, exps[i])
+    xbuf[0] = x
+    mplay_block(xbuf, r, eta, ops, opbuf)
+    ur = fe[F_OFFSET]
+    for i in range(r.shape[0]):
+        ur += w_h[i] * opbuf[0, i]
+    return ur
+
+
+@njit(cache=True, inline="always")
+def oiir_step(
+    u: float, y: float,
+    fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
+    ops: np.ndarray, xbuf: np.ndarray, opbuf: np.ndarray, dims: np.ndarray, xs: np.ndarray, phi: np.ndarray,
+    theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray,
+) -> float:
+    """One sample of the identifier: returns the online model output y_m(k) (a-priori), um."""
+    if not math.isfinite(u):
+        u = xs[X_U_PREV]
+        xs[X_INPUT_HELD] += 1.0
+    xs[X_U_PREV] = u
+    ur = fpmpi_step(u, fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf)
+    m1 = dims[D_M] + 1
+    nd = dims[D_N]
+    if xs[X_STARTED] == 0.0:
+        xs[X_STARTED] = 1.0
+        y0 = y if math.isfinite(y) else 0.0
+        for i in range(m1):
+            phi[i] = ur
+        for j in range(nd):
+            phi[m1 + j] = y0
+        if dims[D_BIAS] != 0:
+            phi[m1 + nd] = 1.0
+    # u_r lags: shift right, newest first (the y lags were shifted after the previous sample)
+    for i in range(m1 - 1, 0, -1):
+        phi[i] = phi[i - 1]
+    phi[0] = ur
+    if xs[X_FILLED] < max(m1 - 1, nd):
+        # Lags from before the first sample are guesses: predict, but keep them out of the fit
+        # (a handful of wrong rows bias a noise-free, ill-conditioned least squares visibly).
+        xs[X_FILLED] += 1.0
+        y_m = 0.0
+        for i in range(theta.shape[0]):
+            y_m += theta[i] * phi[i]
+        y_in = y if math.isfinite(y) else y_m
+    else:
+        y_m = R.rls_step(phi, y, theta, P, g, cfg, st)
+        status = st[R.ST_STATUS]
+        y_in = y if (status == R.UPDATED or status == R.FROZEN) else st[R.ST_CLEAN]
+    if not math.isfinite(y_in):  # no prediction either (cannot happen after the input guard)
+        y_in = phi[m1] if nd > 0 else 0.0
+    for j in range(nd - 1, 0, -1):
+        phi[m1 + j] = phi[m1 + j - 1]
+    if nd > 0:
+        phi[m1] = y_in
+    return y_m
+
+
+@njit(cache=True)
+def oiir_block(
+    u: np.ndarray, y: np.ndarray,
+    fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
+    ops: np.ndarray, xbuf: np.ndarray, opbuf: np.ndarray, dims: np.ndarray, xs: np.ndarray, phi: np.ndarray,
+    theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray,
+    y_m: np.ndarray, u_r: np.ndarray, theta_hist: np.ndarray, decimate: int,
+) -> int:
+    """:func:`oiir_step` over a block; y_m, u_r (n,) outputs; theta after every ``decimate``-th
+    sample into ``theta_hist`` until full. Returns the history rows written."""
+    rows = 0
+    for k in range(u.shape[0]):
+        y_m[k] = oiir_step(u[k], y[k], fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf, dims, xs, phi,
+                           theta, P, g, cfg, st)
+        u_r[k] = phi[0]
+        if decimate > 0 and (k + 1) % decimate == 0 and rows < theta_hist.shape[0]:
+            for i in range(theta.shape[0]):
+                theta_hist[rows, i] = theta[i]
+            rows += 1
+    return rows
+
+
+class FPMPIFrontEnd:
+    """The rate-independent part of 000 (eq. 1-5) with fixed parameters, as kernel arrays.
+
+    ``exponents`` and ``w_p`` define the fractional polynomial of v = u / u_scale; ``thresholds``
+    (in units of the polynomial's output) and ``w_h`` the one-sided play operators; ``offset`` is
+    the constant term. Output u_r in the output unit of the offline fit (um).
+    """
+
+    def __init__(self, u_scale: float, exponents: np.ndarray, w_p: np.ndarray, thresholds: np.ndarray,
+                 w_h: np.ndarray, offset: float = 0.0):
+        self.exps = np.ascontiguousarray(exponents, dtype=np.float64)
+        self.w_p = np.ascontiguousarray(w_p, dtype=np.float64)
+        self.r = np.ascontiguousarray(thresholds, dtype=np.float64)
+        self.w_h = np.ascontiguousarray(w_h, dtype=np.float64)
+        if self.exps.shape != self.w_p.shape:
+            raise ValueError(f"exponents {self.exps.shape} and w_p {self.w_p.shape} differ in length")
+        if self.r.shape != self.w_h.shape or self.r.ndim != 1 or self.r.size < 1:
+            raise ValueError(f"thresholds {self.r.shape} and w_h {self.w_h.shape}: expected equal, >= 1 operator")
+        if np.any(self.r < 0):
+            raise ValueError("thresholds must be >= 0")
+        if not u_scale > 0:
+            raise ValueError(f"u_scale={u_scale}: expected > 0")
+        self.fe = np.array([float(u_scale), float(offset)])
+        self.eta = np.zeros(self.r.shape[0])  # one-sided play (000 eq. 1)
+
+    @classmethod
+    def from_model(cls, model: Any) -> FPMPIFrontEnd:
+        """From a fitted :class:`hilbench.models.Model` whose base is ``fpmpi``.
+
+        Effects without columns (``dynamics``, ``delay``) are ignored: the OIIR replaces the
+        offline dynamics. Effects that add columns (asymmetry, aux channels, ...) are refused.
+        """
+        base = model.base
+        if base.name != "fpmpi":
+            raise ValueError(f"model base is {base.name!r}; the OIIR front end needs an 'fpmpi' model")
+        if model.weights is None:
+            raise ValueError("the model has no weights yet: fit it first")
+        n_ops = int(base.constants["n"])
+        if len(model.weights) != n_ops + 1:
+            extra = [e.name for e in model.effects if e.name not in ("dynamics", "delay")]
+            raise ValueError(f"model {model.spec!r} has {len(model.weights)} weights, the FPMPI front end "
+                             f"{n_ops + 1}; effects with columns ({', '.join(extra)}) are not supported")
+        if "shaped_max" not in base.constants:
+            raise ValueError("the fpmpi model is not finalised (no 'shaped_max'): fit it first")
+        params = iter(base.params)
+        exps = np.asarray(base.constants["exponents"], float)
+        w_p = np.array([1.0 if e == 1.0 else next(params).value for e in exps])
+        span = float(base.constants["shaped_max"]) or 1.0
+        r = np.arange(n_ops) / n_ops * span  # as FPMPI.columns
+        w = np.asarray(model.weights, float)
+        return cls(float(model.norm["u_scale"]), exps, w_p, r, w[1:], offset=float(w[0]))
+
+    def new_state(self) -> dict[str, np.ndarray]:
+        n = self.r.shape[0]
+        return {"ops": np.zeros(n), "xbuf": np.zeros(1), "opbuf": np.zeros((1, n))}
+
+    def simulate(self, u: np.ndarray, state: dict[str, np.ndarray] | None = None) -> np.ndarray:
+        """u_r for a block of inputs (fresh operators unless ``state`` is given)."""
+        s = self.new_state() if state is None else state
+        out = np.empty(len(u))
+        _fpmpi_block(np.ascontiguousarray(u, dtype=np.float64), self.fe, self.exps, self.w_p, self.r, self.eta,
+                     self.w_h, s["ops"], s["xbuf"], s["opbuf"], out)
+        return out
+
+
+@njit(cache=True)
+def _fpmpi_block(u, fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf, out) -> None:
+    for k in range(u.shape[0]):
+        out[k] = fpmpi_step(u[k], fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf)
+
+
+class OIIR:
+    """Online identifier of 000 (Fig. 6): FPMPI front end + OIIR weights by RLS every sample.
+
+    ``front_end``: an :class:`FPMPIFrontEnd` (or use :meth:`from_model`). ``M``, ``N``: numerator
+    and denominator orders (000: 3 and 5). ``bias``: append a constant regressor. ``theta0``:
+    initial weights [p_0..p_M, q_1..q_N(, bias)] (default 0). Remaining keywords go to the RLS
+    (:func:`hilbench.online.rls.make_config`): ``lam`` (000 uses 1), ``delta`` (000: 1e5),
+    ``forgetting``, ``outlier``, ...
+    """
+
+    def __init__(self, front_end: FPMPIFrontEnd, M: int = 3, N: int = 5, *, bias: bool = False,
+                 theta0: np.ndarray | None = None, delta: float = 1.0e5, **rls_options: Any):
+        if M < 0 or N < 0:
+            raise ValueError(f"orders M={M}, N={N}: expected >= 0")
+        self.front_end = front_end
+        self.M, self.N, self.bias = int(M), int(N), bool(bias)
+        self.n_weights = self.M + 1 + self.N + (1 if bias else 0)
+        self.dims = np.array([self.M, self.N, 1 if bias else 0], dtype=np.int64)
+        self.cfg = R.make_config(self.n_weights, delta=delta, **rls_options)
+        self._theta0 = theta0
+        self.reset()
+
+    @classmethod
+    def from_model(cls, model: Any, M: int = 3, N: int = 5, **options: Any) -> OIIR:
+        """Front end from a fitted ``fpmpi`` :class:`hilbench.models.Model` (see FPMPIFrontEnd)."""
+        return cls(FPMPIFrontEnd.from_model(model), M, N, **options)
+
+    @property
+    def weight_names(self) -> list[str]:
+        names = [f"p{i}" for i in range(self.M + 1)] + [f"q{j}" for j in range(1, self.N + 1)]
+        return names + (["bias"] if self.bias else [])
+
+    def reset(self) -> None:
+        """Fresh operators, empty history, theta0, P0 = delta I."""
+        fs = self.front_end.new_state()
+        self.ops, self.xbuf, self.opbuf = fs["ops"], fs["xbuf"], fs["opbuf"]
+        self.xs = np.zeros(N_XS)
+        self.phi = np.zeros(self.n_weights)
+        s = R.new_state(self.n_weights, float(self.cfg[R.C_DELTA]), self._theta0)
+        self.theta, self.P, self.g, self.st = s["theta"], s["P"], s["g"], s["st"]
+
+    def _args(self) -> tuple:
+        f = self.front_end
+        return (f.fe, f.exps, f.w_p, f.r, f.eta, f.w_h, self.ops, self.xbuf, self.opbuf, self.dims, self.xs,
+                self.phi, self.theta, self.P, self.g, self.cfg, self.st)
+
+    def step(self, u: float, y: float) -> float:
+        """Step mode: input u (command units) and measured output y (um) of sample k; returns the
+        online model output y_m(k) predicted before y(k) was used."""
+        return oiir_step(float(u), float(y), *self._args())
+
+    def run(self, u: np.ndarray, y: np.ndarray, decimate: int = 1) -> dict[str, np.ndarray]:
+        """Block mode. Returns ``y_m`` (online model output), ``u_r`` (FPMPI output) and
+        ``weights`` (theta after every ``decimate``-th sample, rows x K; 000 Fig. 10c-d)."""
+        u = np.ascontiguousarray(u, dtype=np.float64).reshape(-1)
+        y = np.ascontiguousarray(y, dtype=np.float64).reshape(-1)
+        if u.shape != y.shape:
+            raise ValueError(f"u {u.shape} and y {y.shape} differ")
+        n = u.shape[0]
+        y_m = np.empty(n)
+        u_r = np.empty(n)
+        hist = np.empty((n // decimate if decimate > 0 else 0, self.n_weights))
+        oiir_block(u, y, *self._args(), y_m, u_r, hist, int(decimate))
+        return {"y_m": y_m, "u_r": u_r, "weights": hist}
+
+    def counters(self) -> dict[str, Any]:
+        return {**R.counters(self.st), "input_held": int(self.xs[X_INPUT_HELD])}
+
+    def transfer_function(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current weights as (b, a) in scipy.signal.lfilter convention: G = P / (1 - Q)."""
+        b = self.theta[: self.M + 1].copy()
+        a = np.concatenate([[1.0], -self.theta[self.M + 1 : self.M + 1 + self.N]])
+        return b, a
+
+    def static_gain(self, theta: np.ndarray | None = None) -> float:
+        """DC gain of the OIIR, sum p / (1 - sum q): um of output per um of u_r."""
+        t = self.theta if theta is None else theta
+        return float(np.sum(t[: self.M + 1]) / (1.0 - np.sum(t[self.M + 1 : self.M + 1 + self.N])))
+
+
+def re_n2_pct(y: np.ndarray, y_m: np.ndarray) -> float:
+    """000 eq. 18: ||y - y_m||_2 / ||y||_2 x 100 % (non-finite samples left out)."""
+    ok = np.isfinite(y) & np.isfinite(y_m)
+    return float(100.0 * np.linalg.norm(y[ok] - y_m[ok]) / np.linalg.norm(y[ok]))
+
+
+def re_ninf_pct(y: np.ndarray, y_m: np.ndarray) -> float:
+    """000 eq. 18: ||y - y_m||_inf / ||y||_inf x 100 % (non-finite samples left out)."""
+    ok = np.isfinite(y) & np.isfinite(y_m)
+    return float(100.0 * np.max(np.abs(y[ok] - y_m[ok])) / np.max(np.abs(y[ok])))

@@ -1,0 +1,1 @@
+"""Tests of hilbench.online: RLS, the OIIR identifier of paper 000, inverse compensators."""

@@ -1,0 +1,193 @@
+"""OIIR identifier of paper 000 on the simulated gmm-fpmpi rig: regressor indices, front end,
+tracking a gain change, guards, block == step.
+
+The data come from the simulated plant's own kernel (``hilbench.sim.kernels.plant_block``) with
+the parameters of configs/gmm-fpmpi.toml (000 Table 3 FPMPI, one sample of delay, 40 Hz / zeta 0.6
+second-order dynamics, 1 kHz, laser-sensor noise 0.03 um and 0.01 um quantisation) and the plant's
+temperature gain switched on: the stroke drops as the actuator cools (000 Fig. 5).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import signal as sps
+
+from hilbench.models import Model, RunData
+from hilbench.online.oiir import OIIR, FPMPIFrontEnd, re_n2_pct, re_ninf_pct
+from hilbench.sim import kernels as K
+
+FS = 1000.0
+IN_EXP = np.array([0.0, 1.0, 2.0, 0.5, 3.0, 1.0 / 3.0, 4.0, 0.25])
+IN_W = np.array([0.0057, 0.4640, 0.2343, -1.0113, 0.5568, 0.7493, -0.9740, 0.4889])
+OP_R = np.array([0.0000, 0.0669, 0.1338, 0.2007, 0.2676, 0.3345, 0.4014, 0.4683, 0.5352, 0.6021])
+OP_W = np.array([0.3955, 0.2042, 0.4940, 0.3927, 0.7198, 0.1228, 0.1889, 0.1550, 0.2058, -0.0060])
+T_REF = 42.5  # degC, 000 Fig. 5
+GAIN_PER_DEGC = 0.02  # relative stroke change per degC (42.5 -> 30.4 degC: -24 %)
+
+
+def dynamics() -> tuple[np.ndarray, np.ndarray]:
+    """Second-order 40 Hz, zeta 0.6, unit gain, zero-order hold at 1 kHz (the plant's discretisation)."""
+    wn = 2 * math.pi * 40.0
+    bd, ad, _ = sps.cont2discrete(([wn**2], [1.0, 2 * 0.6 * wn, wn**2]), 1.0 / FS, method="zoh")
+    b, a = np.ravel(bd), np.ravel(ad)
+    return b / a[0], a / a[0]
+
+
+def gmm_plant(u: np.ndarray, temperature_degC: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Measured displacement (um) of the simulated gmm-fpmpi actuator for command u (A)."""
+    n = u.shape[0]
+    S = np.zeros(K.N_SCALARS)
+    S[K.S_FS] = FS
+    S[K.S_AMP_GAIN] = S[K.S_AMP_ALPHA] = 1.0
+    S[K.S_AMP_SLEW] = math.inf
+    S[K.S_AMP_LO], S[K.S_AMP_HI] = -math.inf, math.inf
+    S[K.S_INPUT_SCALE], S[K.S_OUT_SCALE], S[K.S_MODEL] = 3.0, 37.0, 1.0
+    S[K.S_DELAY] = 1
+    S[K.S_DYN_ON] = 1.0
+    S[K.S_TEMP_ON], S[K.S_TEMP_REF], S[K.S_TEMP_GAIN] = 1.0, T_REF, GAIN_PER_DEGC
+    S[K.S_NOISE_STD], S[K.S_QUANT] = 0.03, 0.01
+    S[K.S_RANGE_LO], S[K.S_RANGE_HI] = -math.inf, math.inf
+    b, a = dynamics()
+    e = np.zeros(0)
+    out, true, drive = np.empty(n), np.empty(n), np.empty(n)
+    K.plant_block(np.ascontiguousarray(u, float), np.ascontiguousarray(temperature_degC, float), e,
+                  np.random.default_rng(seed).standard_normal(n), S, IN_EXP, IN_W, OP_R, OP_W,
+                  np.zeros(OP_R.size), e, e, e, np.ones(1), np.zeros(1), np.ones(1), e, e, b, a,
+                  np.zeros(K.N_STATES), np.zeros(OP_R.size), e, np.zeros(a.size - 1), np.zeros(1),
+                  np.zeros(K.N_TP), out, true, drive)
+    return out
+
+
+@pytest.fixture(scope="module")
+def offline_model() -> Model:
+    """FPMPI fitted offline (000 sec. 4.1): 0.05 Hz sine, amplitude growing 0.15 -> 1.5 A around
+    1.5 A, at the reference temperature. Shape (w_P) at the rig's values, scaled so that the linear
+    term is 1 as hilbench's FPMPI fixes it; weights (offset, w_H) by linear least squares."""
+    n = 200_000
+    t = np.arange(n) / FS
+    u = 1.5 - (0.15 + 1.35 * t / t[-1]) * np.cos(2 * np.pi * 0.05 * t)
+    y = gmm_plant(u, np.full(n, T_REF), seed=1)
+    run = RunData(u, y, {}, FS)
+    model = Model("fpmpi")
+    model.prepare([run])
+    model.set_shape(np.array([w / IN_W[1] for w, e in zip(IN_W, IN_EXP) if e != 1.0]))
+    model.finalize([run])
+    X, names, _, _ = model.design(run)
+    model.weights = np.linalg.lstsq(X, y, rcond=None)[0]
+    model.weight_names = names
+    assert re_n2_pct(y, model.simulate(run)) < 1.0  # the static fit itself is good
+    return model
+
+
+def test_front_end_is_the_models_fpmpi(offline_model):
+    fe = FPMPIFrontEnd.from_model(offline_model)
+    t = np.arange(5000) / FS
+    u = 1.4 - 1.3 * np.cos(2 * np.pi * 3.0 * t) * np.exp(-t / 3)  # minor loops too
+    np.testing.assert_allclose(fe.simulate(u), offline_model.simulate(RunData(u, None, {}, FS)), rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="fpmpi"):
+        FPMPIFrontEnd.from_model(Model("pi"))
+
+
+def identity_front_end() -> FPMPIFrontEnd:
+    """u_r = u: one operator with threshold 0, polynomial u^1."""
+    return FPMPIFrontEnd(1.0, np.array([1.0]), np.array([1.0]), np.array([0.0]), np.array([1.0]))
+
+
+def test_regressor_follows_eq_11():
+    """y(k) = sum_{i=0..M} p_i u_r(k-i) + sum_{j=1..N} q_j y(k-j): exact recovery pins the indices."""
+    rng = np.random.default_rng(3)
+    p = np.array([0.3, -0.2, 0.5, 0.1])  # p_0..p_3
+    poles = np.array([0.8, 0.5 + 0.4j, 0.5 - 0.4j, -0.3, 0.2])
+    q = -np.real(np.poly(poles))[1:]  # q_1..q_5 of 1 - Q(z^-1)
+    u = rng.standard_normal(4000)
+    y = sps.lfilter(p, np.concatenate([[1.0], -q]), u)
+    oiir = OIIR(identity_front_end(), M=3, N=5, lam=1.0, outlier="off")
+    res = oiir.run(u, y, decimate=100)
+    np.testing.assert_allclose(oiir.theta, np.concatenate([p, q]), atol=1e-3)
+    assert oiir.weight_names == ["p0", "p1", "p2", "p3", "q1", "q2", "q3", "q4", "q5"]
+    assert res["weights"].shape == (40, 9)
+    np.testing.assert_array_equal(res["u_r"], u)
+    b, a = oiir.transfer_function()
+    np.testing.assert_allclose(b, p, atol=1e-3)
+    np.testing.assert_allclose(a[1:], -q, atol=1e-3)
+
+
+def test_tracks_a_gain_change_offline_model_cannot(offline_model):
+    """000 Fig. 10 / Table 4 on the simulated rig: 4 Hz, 0-2.5 A drive; at 5 s the actuator has
+    cooled from 42.5 to 30.4 degC (stroke -24 %). Online prediction error (000 eq. 18) against the
+    offline model with fixed weights (the fitted FPMPI with the rig's true dynamics and delay)."""
+    n = 10_000
+    t = np.arange(n) / FS
+    u = 1.25 - 1.25 * np.cos(2 * np.pi * 4.0 * t)
+    temperature = np.where(t < 5.0, T_REF, 30.4)
+    y = gmm_plant(u, temperature, seed=2)
+    fe = FPMPIFrontEnd.from_model(offline_model)
+    b, a = dynamics()
+    offline = sps.lfilter(b, a, np.concatenate([[0.0], fe.simulate(u)[:-1]]))  # one sample of delay
+
+    oiir = OIIR.from_model(offline_model, M=3, N=5, lam=0.995)
+    res = oiir.run(u, y, decimate=10)
+    y_m = res["y_m"]
+    half = n // 2
+    on, off = re_n2_pct(y, y_m), re_n2_pct(y, offline)
+    on2, off2 = re_n2_pct(y[half:], y_m[half:]), re_n2_pct(y[half:], offline[half:])
+    persistence = re_n2_pct(y[1:], y[:-1])  # predict y(k) by y(k-1): what the measured lags give for free
+    assert re_n2_pct(y[:half], offline[:half]) < 1.0  # the offline model was right before the change
+    assert off2 > 20.0  # ... and is wrong after it
+    assert on < off / 30.0 and on2 < off2 / 30.0, (on, off, on2, off2)
+    assert on < persistence / 3.0, (on, persistence)
+    assert re_ninf_pct(y[half:], y_m[half:]) < re_ninf_pct(y[half:], offline[half:]) / 10.0
+    # the weights track the physics: the OIIR's static gain falls by the stroke's factor
+    w = res["weights"]
+    before, after = oiir.static_gain(w[half // 10 - 1]), oiir.static_gain(w[-1])
+    expected = 1.0 + GAIN_PER_DEGC * (30.4 - T_REF)
+    assert before == pytest.approx(1.0, abs=0.02)
+    assert after / before == pytest.approx(expected, abs=0.02), (before, after, expected)
+    assert np.all(np.isfinite(w)) and oiir.counters()["covariance_resets"] == 0
+
+
+def test_bad_samples_do_not_poison_the_identifier(offline_model):
+    n = 6000
+    t = np.arange(n) / FS
+    u = 1.25 - 1.25 * np.cos(2 * np.pi * 4.0 * t)
+    y = gmm_plant(u, np.full(n, T_REF), seed=3)
+    clean = OIIR.from_model(offline_model, lam=0.995)
+    ref = clean.run(u, y)
+    rng = np.random.default_rng(4)
+    bad = rng.choice(np.arange(1000, n), 120, replace=False)
+    y_bad, u_bad = y.copy(), u.copy()
+    y_bad[bad[:40]] = np.nan
+    y_bad[bad[40:100]] += rng.choice([-1.0, 1.0], 60) * 30.0  # 1000-sigma sensor spikes
+    u_bad[bad[100:]] = np.inf
+    guarded = OIIR.from_model(offline_model, lam=0.995)
+    res = guarded.run(u_bad, y_bad)
+    c = guarded.counters()
+    assert c["nonfinite_skipped"] == 40 and c["input_held"] == 20 and c["outliers"] >= 60
+    assert np.all(np.isfinite(res["weights"]))
+    good = np.setdiff1d(np.arange(1000, n), bad)
+    assert re_n2_pct(y[good], res["y_m"][good]) < 1.5 * re_n2_pct(y[good], ref["y_m"][good]) + 0.05
+    # spikes kept out of the output lags: feeding them in (outlier="off") does visible damage
+    naive = OIIR.from_model(offline_model, lam=0.995, outlier="off")
+    res_naive = naive.run(u, np.where(np.isnan(y_bad), y, y_bad))
+    assert re_n2_pct(y[good], res_naive["y_m"][good]) > 3.0 * re_n2_pct(y[good], res["y_m"][good])
+
+
+def test_block_mode_equals_step_mode(offline_model):
+    n = 1500
+    t = np.arange(n) / FS
+    u = 1.25 - 1.25 * np.cos(2 * np.pi * 4.0 * t)
+    y = gmm_plant(u, np.where(t < 0.7, T_REF, 35.0), seed=5)
+    y[300] = np.nan
+    y[400] += 25.0
+    u[500] = np.nan
+    block = OIIR.from_model(offline_model, lam=0.995)
+    res = block.run(u, y)
+    step = OIIR.from_model(offline_model, lam=0.995)
+    y_step = np.array([step.step(uk, yk) for uk, yk in zip(u, y)])
+    np.testing.assert_array_equal(res["y_m"], y_step)
+    np.testing.assert_array_equal(res["weights"][-1], step.theta)
+    for name in ("theta", "P", "st", "phi", "ops", "xs"):
+        np.testing.assert_array_equal(getattr(block, name), getattr(step, name), err_msg=name)
