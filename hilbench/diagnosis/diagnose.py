@@ -38,6 +38,7 @@ from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.verdict import Candidate, judge, rank
 from hilbench.diagnosis.where import where
+from hilbench.identify.dataset import Dataset, as_dataset
 from hilbench.identify.fitting import FitResult, PathLike, finite_json, fit, fit_or_evaluate
 
 
@@ -97,7 +98,7 @@ def _step(result: FitResult, added: str | None) -> dict[str, Any]:
 
 
 def diagnose(
-    paths: PathLike | Sequence[PathLike],
+    paths: Dataset | PathLike | Sequence[PathLike],
     spec_or_model_file: str,
     *,
     train: Sequence[str] | None = None,
@@ -116,6 +117,7 @@ def diagnose(
     spec refitted on the same split, so both sides of every comparison saw the same training rows.
     """
     kw = {"train": train, "test": test, "train_fraction": train_fraction}
+    paths = as_dataset(paths)  # read once: every refit below works on the same samples
     start = fit_or_evaluate(paths, spec_or_model_file, **kw)
     base = start if start.refitted else fit(paths, start.spec, **kw)
     steps = [_step(start, None)]

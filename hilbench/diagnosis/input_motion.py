@@ -10,12 +10,13 @@ Units: input in the command unit (V or A), rates in input units per s, times in 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from numba import njit
+
+from hilbench.identify.statistics import difference_noise_std
 
 #: a measured input holds still inside this many noise stds, capped at this fraction of its span
 HOLD_NOISE_SIGMAS = 5.0
@@ -35,8 +36,7 @@ def input_noise(u: np.ndarray) -> float:
     voltage its (white) sensor noise: the fourth difference of white noise has std sqrt(70) sigma."""
     if u.size < 9:
         return 0.0
-    d4 = np.diff(u, 4)
-    return float(1.4826 * np.median(np.abs(d4 - np.median(d4))) / math.sqrt(70.0))
+    return difference_noise_std(np.diff(u, 4), order=4)
 
 
 @njit(cache=True)

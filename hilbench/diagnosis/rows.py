@@ -7,7 +7,6 @@ derivatives and the auxiliary channels. Units: the input's unit, the output's un
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -15,6 +14,7 @@ import numpy as np
 from hilbench.diagnosis.input_motion import motion
 from hilbench.errors import UserError
 from hilbench.identify.fitting import FitResult
+from hilbench.identify.statistics import difference_noise_std
 
 
 @dataclass
@@ -85,4 +85,4 @@ def noise_floor(e: np.ndarray, run: np.ndarray) -> float:
     d = np.concatenate([np.diff(e[run == k]) for k in np.unique(run)])
     if d.size < 3:
         return 0.0
-    return float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0))
+    return difference_noise_std(d)

@@ -23,6 +23,7 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.input_motion import excitation_summary
 from hilbench.diagnosis.rate_calibration import RatePlan, rate_plan
 from hilbench.identify.fitting import FitResult
+from hilbench.identify.statistics import difference_noise_std
 from hilbench.models.model import split_spec
 
 
@@ -58,7 +59,7 @@ def aux_variation(runs: list[np.ndarray]) -> float:
     if not smooth:
         return 0.0
     d = np.concatenate(diffs)
-    noise = 1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)
+    noise = difference_noise_std(d)
     if math.isfinite(quantum):
         noise = max(noise, quantum / math.sqrt(12.0))  # a quantised, mostly constant channel
     s = np.concatenate(smooth)

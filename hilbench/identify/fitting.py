@@ -19,108 +19,25 @@ Units: input in the recording's command unit (V or A), output and errors in the 
 
 from __future__ import annotations
 
-import hashlib
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 
 from hilbench.errors import DataError, UserError
 from hilbench.identify import FitReport, fit_model
+from hilbench.identify.dataset import Dataset, FitRun, PathLike, as_dataset, load_runs
 from hilbench.identify.metrics import METRIC_KEYS, metrics
 from hilbench.models import Model, RunData, SpecError
-from hilbench.recording.hdf5 import Recording, Run
 
-PathLike = Union[str, "os.PathLike[str]"]
-#: channels that are not auxiliary inputs of a model
-NON_AUX = ("time", "input", "output", "lateness", "reference")
 ROLES = ("train", "validation")
 
 
-# -- reading ------------------------------------------------------------------------------------
-
-
-def _sha256(*arrays: np.ndarray) -> str:
-    digest = hashlib.sha256()
-    for a in arrays:
-        digest.update(np.ascontiguousarray(a, dtype="<f8").tobytes())
-    return digest.hexdigest()
-
-
-def load_runs(path: PathLike, run_names: Sequence[str] | None = None) -> list[RunData]:
-    """The runs of the recording ``path`` as :class:`RunData`, in recorded order.
-
-    ``input`` is the applied command (V or A), ``output`` the displacement (um), ``aux`` every other
-    channel except time, lateness and reference (e.g. temperature in degC, load in N),
-    ``sample_rate_hz`` in Hz. ``source`` names the file, the run, a SHA-256 of the input and output
-    samples (little-endian float64, input then output) and the run's status: a run that did not
-    complete (killed, aborted) is still usable, every recorded sample is valid.
-
-    A run recorded right after the previous one of the same sweep (attribute ``previous_run``) has
-    ``chain=True``: the model's memory carries over, as the actuator's did; the first run of a
-    sweep starts from the rig's rest value (``approach_from``). Imported runs start afresh.
-    ``run_names`` (group name, label or 1-based number) returns only those runs; give none when
-    fitting, so the memory is right.
-    """
-    recording = Recording(path)
-    selected = recording.runs if run_names is None else [recording.run(name) for name in run_names]
-    return _run_data(recording, selected)
-
-
-def _follows(run: Run, earlier: list[RunData]) -> bool:
-    """The run was recorded right after the previous one on the same actuator (same sweep)."""
-    previous = str(run.attrs.get("previous_run", ""))
-    return bool(previous) and bool(earlier) and earlier[-1].name == previous
-
-
-def _run_data(recording: Recording, selected: list[Run]) -> list[RunData]:
-    out: list[RunData] = []
-    for run in selected:
-        missing = [c for c in ("input", "output") if c not in run.channels]
-        if missing:
-            raise DataError(
-                f"run {run.name} has no {' or '.join(repr(m) for m in missing)} channel to fit "
-                f"(channels: {', '.join(run.channels) or 'none'})",
-                where=str(recording.path),
-            )
-        data = run.data()
-        source = {"file": str(recording.path), "run": run.name, "sha256": _sha256(data["input"], data["output"]),
-                  "status": run.status or "unknown"}
-        approach = run.attrs.get("approach_from")
-        out.append(RunData(
-            input=data["input"], output=data["output"],
-            aux={c: v for c, v in data.items() if c not in NON_AUX},
-            sample_rate_hz=run.sample_rate_hz, name=run.name, source=source,
-            chain=_follows(run, out),
-            approach_from=float(approach) if approach is not None and not _follows(run, out) else None,
-        ))
-    return out
-
-
 # -- roles --------------------------------------------------------------------------------------
-
-
-@dataclass
-class FitRun:
-    """One run in a fit: its data, which rows train and which validate, the model's output."""
-
-    key: str  # the name shown and matched: the group name, ``stem:group`` with several files
-    data: RunData
-    train: np.ndarray  # bool mask of training rows
-    validation: np.ndarray  # bool mask of validation rows
-    simulated: np.ndarray | None = None  # free-run model output, output unit (um)
-    metrics: dict[str, dict[str, float] | None] = field(default_factory=dict)
-
-    @property
-    def role(self) -> str:
-        """``train``, ``validation``, ``train+validation`` (split run) or ``unused``."""
-        roles = [r for r, m in (("train", self.train), ("validation", self.validation)) if m.any()]
-        return "+".join(roles) or "unused"
 
 
 def _aliases(run: RunData, stem: str, file: str, several: bool) -> set[str]:
@@ -285,41 +202,6 @@ def finite_json(value: Any) -> Any:
 # -- fitting and evaluation ---------------------------------------------------------------------
 
 
-def _paths(path_or_paths: PathLike | Sequence[PathLike]) -> list[Path]:
-    if isinstance(path_or_paths, (str, os.PathLike)):
-        return [Path(path_or_paths)]
-    paths = [Path(p) for p in path_or_paths]
-    if not paths:
-        raise UserError("no recording given")
-    return paths
-
-
-def _read(paths: list[Path], notes: list[str]) -> tuple[list[FitRun], str, str]:
-    """All runs of all files (empty runs left out, with a note), input and output units."""
-    several = len(paths) > 1
-    runs: list[FitRun] = []
-    units: dict[str, set[str]] = {"input": set(), "output": set()}
-    for path in paths:
-        recording = Recording(path)
-        for run in recording.runs:
-            for c in units:
-                if c in run.units:
-                    units[c].add(run.units[c])
-        for data in _run_data(recording, recording.runs):
-            status = data.source["status"]
-            if len(data) == 0:
-                notes.append(f"run {data.name} of {path} has no samples")
-            elif status != "complete":
-                notes.append(f"run {data.name} of {path} is {status!r}; its {len(data)} recorded samples are used")
-            key = f"{path.stem}:{data.name}" if several else data.name
-            runs.append(FitRun(key, data, np.zeros(len(data), bool), np.zeros(len(data), bool)))
-    if not runs:
-        raise DataError(f"no runs in {', '.join(map(str, paths))}")
-    if len(units["output"]) > 1:
-        notes.append(f"runs differ in output unit: {', '.join(sorted(units['output']))}")
-    return runs, "/".join(sorted(units["input"])), "/".join(sorted(units["output"])) or "um"
-
-
 def _channels(runs: list[FitRun]) -> tuple[list[str], list[str]]:
     """Channels present in any run, and in every run (recorded order)."""
     union: list[str] = []
@@ -377,7 +259,7 @@ def _validation_note(runs: list[FitRun], notes: list[str]) -> None:
 
 
 def fit(
-    path_or_paths: PathLike | Sequence[PathLike],
+    path_or_paths: Dataset | PathLike | Sequence[PathLike],
     spec: str,
     *,
     train: Sequence[str] | None = None,
@@ -394,8 +276,9 @@ def fit(
     channels available), :class:`DataError` for an unknown run, :class:`UserError` for an empty
     training set. ``progress`` receives one-line notes of the shape search.
     """
-    notes: list[str] = []
-    runs, u_unit, y_unit = _read(_paths(path_or_paths), notes)
+    dataset = as_dataset(path_or_paths)
+    notes = list(dataset.notes)
+    runs, u_unit, y_unit = dataset.fit_runs(), dataset.input_unit, dataset.output_unit
     union, _ = _channels(runs)
     model = Model(spec, channels=union)
     _check_aux(model, runs)
@@ -418,7 +301,7 @@ def fit(
 
 
 def evaluate(
-    path_or_paths: PathLike | Sequence[PathLike],
+    path_or_paths: Dataset | PathLike | Sequence[PathLike],
     model: Model,
     *,
     train: Sequence[str] | None = None,
@@ -427,8 +310,9 @@ def evaluate(
     loaded_from: str | None = None,
 ) -> FitResult:
     """Score an already fitted ``model`` on recordings without refitting (same roles as :func:`fit`)."""
-    notes: list[str] = []
-    runs, u_unit, y_unit = _read(_paths(path_or_paths), notes)
+    dataset = as_dataset(path_or_paths)
+    notes = list(dataset.notes)
+    runs, u_unit, y_unit = dataset.fit_runs(), dataset.input_unit, dataset.output_unit
     _check_aux(model, runs)
     split = assign_roles(runs, train, test, train_fraction)
     _validation_note(runs, notes)
@@ -444,7 +328,7 @@ def is_model_file(text: str) -> bool:
 
 
 def fit_or_evaluate(
-    path_or_paths: PathLike | Sequence[PathLike],
+    path_or_paths: Dataset | PathLike | Sequence[PathLike],
     spec_or_file: str,
     **kwargs: Any,
 ) -> FitResult:
@@ -455,5 +339,5 @@ def fit_or_evaluate(
     return fit(path_or_paths, spec_or_file, **kwargs)
 
 
-__all__ = ["FitResult", "FitRun", "METRIC_KEYS", "assign_roles", "evaluate", "fit", "fit_or_evaluate",
+__all__ = ["Dataset", "FitResult", "FitRun", "METRIC_KEYS", "assign_roles", "evaluate", "fit", "fit_or_evaluate",
            "is_model_file", "load_runs"]

@@ -20,10 +20,9 @@ from typing import Any
 
 import numpy as np
 from scipy import optimize
-
-from hilbench.errors import UserError
 from threadpoolctl import threadpool_limits
 
+from hilbench.errors import UserError
 from hilbench.models.model import Model, RunData
 
 

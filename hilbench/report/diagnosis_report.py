@@ -34,6 +34,7 @@ import numpy as np
 
 from hilbench.errors import UserError
 from hilbench.identify.metrics import METRIC_KEYS
+from hilbench.report.figures import stride
 
 if TYPE_CHECKING:
     from hilbench.diagnosis.diagnose import Diagnosis
@@ -121,10 +122,6 @@ def _table(head: list[str], rows: list[list[tuple[str, str]]], classes: list[str
 # -- figures ------------------------------------------------------------------------------------
 
 
-def _stride(n: int, max_points: int = MAX_POINTS) -> int:
-    return max(1, math.ceil(n / max(1, max_points)))
-
-
 def _png(fig: Any) -> str:
     """The figure as a base64 PNG data URI; the figure is closed."""
     import matplotlib.pyplot as plt
@@ -198,7 +195,7 @@ def fig_loops(result: FitResult) -> str:
     fig, axes = plt.subplots(rows, cols, figsize=(6.2 * cols, 4.2 * rows), squeeze=False)
     u_label, y_unit = _labels(result)
     for ax, run in zip(axes.flat, runs):
-        step = _stride(len(run.data))
+        step = stride(len(run.data), MAX_POINTS)
         u, y, s = run.data.input[::step], run.data.output[::step], run.simulated[::step]
         ax.plot(u, y, color="0.5", lw=0.9, label="measured")
         ax.plot(u, s, color="tab:red", lw=0.9, ls="--", label="model")
@@ -225,7 +222,7 @@ def fig_time(result: FitResult) -> str:
     for ax, run in zip(axes[:, 0], runs):
         n = len(run.data)
         fs = run.data.sample_rate_hz if run.data.sample_rate_hz > 0 else 1.0
-        step = _stride(n)
+        step = stride(n, MAX_POINTS)
         t = np.arange(n) / fs
         e = _error(run)
         for a, b in _spans(run.validation):
@@ -253,7 +250,7 @@ def _pooled(result: FitResult) -> dict[str, Any]:
     """Used rows of the shown runs, decimated, pooled: e, u, |rate|, direction, aux, validation."""
     runs = _shown(result)
     total = sum(int(_used(r).sum()) for r in runs) or 1
-    step = _stride(total)
+    step = stride(total, MAX_POINTS)
     common: set[str] | None = None
     for r in runs:
         common = set(r.data.aux) if common is None else common & set(r.data.aux)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hilbench.report.plotting import _stride, save_figure
+from hilbench.report.figures import save_figure, stride
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -57,7 +57,7 @@ def _spans(mask: np.ndarray) -> list[tuple[int, int]]:
 def _draw(result: FitResult, run: FitRun, ax_loop: Axes, ax_err: Axes, max_points: int) -> None:
     data = run.data
     n = len(data)
-    step = _stride(n, max_points)
+    step = stride(n, max_points)
     fs = data.sample_rate_hz if data.sample_rate_hz > 0 else 1.0
     t = np.arange(n) / fs
     y_model = run.simulated if run.simulated is not None else np.full(n, np.nan)

@@ -6,15 +6,15 @@ usually in um). Long runs are decimated by plain striding for drawing only.
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from hilbench.errors import DataError
 from hilbench.recording.hdf5 import Recording, Run
+from hilbench.report.figures import save_figure, stride
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -26,11 +26,6 @@ _MAIN = ("time", "input", "output", "reference")
 
 def _label(name: str, unit: str) -> str:
     return f"{name} [{unit}]" if unit else name
-
-
-def _stride(n: int, max_points: int) -> int:
-    """Sample step that keeps at most ``max_points`` points of a run of ``n`` samples."""
-    return max(1, math.ceil(n / max(1, max_points)))
 
 
 def _select(recording: Recording, runs: list[str] | None) -> tuple[list[Run], str]:
@@ -73,19 +68,6 @@ def plot_runs(
     return save_figure(make_figure(path, runs=runs, max_points=max_points), output_png)
 
 
-def save_figure(fig: Any, output_png: str | Path) -> Path:
-    """Write a figure to PNG (folders created) and release it."""
-    import matplotlib.pyplot as plt
-
-    out = Path(output_png)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        fig.savefig(out, dpi=100)
-    finally:
-        plt.close(fig)
-    return out
-
-
 def make_figure(
     path: str | os.PathLike[str], *, runs: list[str] | None = None, max_points: int = 20000
 ) -> Figure:
@@ -116,7 +98,7 @@ def make_figure(
 def _draw_run(run: Run, row: np.ndarray, has_aux: bool, max_points: int) -> None:
     data = run.data()
     n = run.n_samples
-    step = _stride(n, max_points)
+    step = stride(n, max_points)
     rate = run.sample_rate_hz
     if "time" in data:
         t, t_label = data["time"], _label("time", run.units["time"])

@@ -18,27 +18,13 @@ from typing import Any
 import numpy as np
 
 from hilbench.sim.schema import SensorModel
+from hilbench.effects import effect_of_plant_table
 from hilbench.errors import ConfigError
 from hilbench.sim import kernels as K
 from hilbench.sim import trajectories
 from hilbench.sim.dynamics import discretize_dynamics
 
 _EMPTY = np.zeros(0)
-
-#: Plant table names as effect names of DESIGN.md (the tables use underscores).
-EFFECT_OF_TABLE = {
-    "hysteresis": "hysteresis",
-    "asymmetry": "asymmetry",
-    "saturation": "saturation",
-    "rate_dependence": "rate-dependence",
-    "dynamics": "dynamics",
-    "creep": "creep",
-    "delay": "delay",
-    "temperature": "temperature",
-    "load": "load",
-    "amplifier": "amplifier",
-}
-
 
 @dataclass
 class PlantOutput:
@@ -75,7 +61,7 @@ class Plant:
     @property
     def effects(self) -> list[str]:
         """Effect names (DESIGN.md vocabulary) switched on in this plant."""
-        names = [EFFECT_OF_TABLE[t] for t in self.tables]
+        names = [effect_of_plant_table(t) for t in self.tables]
         if self.tables["hysteresis"]["model"] == "linear":
             names.remove("hysteresis")
         return names

@@ -16,15 +16,10 @@ from scipy import signal as sps
 
 from hilbench.rig.config import load_rig
 from hilbench.errors import UserError
-from hilbench.identify import linear as L
-from hilbench.identify.linear import (
-    fit_transfer_function,
-    frequency_response,
-    search_delay,
-    step_response,
-    zeta_wn_from_overshoot,
-    zeta_wn_from_times,
-)
+from hilbench.identify import transfer_function as L
+from hilbench.identify.frequency_response import frequency_response
+from hilbench.identify.step_response import step_response, zeta_wn_from_overshoot, zeta_wn_from_times
+from hilbench.identify.transfer_function import fit_transfer_function, search_delay
 from hilbench.excitation.plan import load_plan_file, plan_from_compact
 from hilbench.rig.rig import Rig
 from hilbench.excitation.signals import make_excitation
@@ -363,7 +358,7 @@ def test_delay_search_finds_the_delay():
 
 def test_unstable_estimates_are_reflected_inside_the_unit_circle():
     a = np.real(np.poly([1.25, 0.5, 0.9 * np.exp(0.3j), 0.9 * np.exp(-0.3j)]))
-    s = L._stabilize(a)
+    s = L.stabilize(a)
     assert np.all(np.abs(np.roots(s)) < 1)
     # reflection keeps the shape of the magnitude response (up to a constant factor)
     w = np.linspace(0.01, 3.1, 50)

@@ -114,7 +114,7 @@ def test_paper_003_rate_dependent_pi_across_10_to_1500_hz():
 def test_paper_002_mpi_with_dynamics_within_2_5_percent_at_2_5_to_4_a_and_1_to_100_hz():
     """002's procedure: the linear part from a small step (ADT, eq. 10), then the MPI weights with
     those dynamics fixed from the amplitude-decreasing 1 Hz sine; validated on Fig. 10-11's runs."""
-    from hilbench.identify.linear import step_response
+    from hilbench.identify.step_response import step_response
 
     runs = record("gmm-gu2016", [
         "step:levels=0/0.726/0,hold_s=0.005/0.02/0.02,rise_s=0.00005",  # sec. 3.2.1, step 2
