@@ -23,6 +23,7 @@ that satisfies the protocol).
 
 from __future__ import annotations
 
+import importlib
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -71,6 +72,21 @@ def retry(call: Callable[[], T], *, device: str, what: str, attempts: int = 3, b
     raise DeviceTimeout(device, f"{what}: no valid answer after {attempts} tries ({message})") from last
 
 
+class Lazy:
+    """A function named ``module:function``, imported on the first call: a driver names its emulator
+    this way, so opening a real device never loads (or depends on) the emulated one."""
+
+    def __init__(self, entry: str):
+        self.entry = entry
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        module, _, function = self.entry.partition(":")
+        return getattr(importlib.import_module(module), function)(*args, **kwargs)
+
+    def __repr__(self) -> str:
+        return f"Lazy({self.entry!r})"
+
+
 # -- settings -----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Setting:
@@ -91,7 +107,7 @@ class DriverSpec:
     roles: tuple[str, ...]  # among "actuator", "sensor", "player"
     settings: tuple[Setting, ...]
     open: Callable[[dict[str, Any]], Any]  # complete settings -> device object
-    emulator: Callable[..., Any] | None = None  # start_emulator(settings, world) -> Emulator
+    emulator: Callable[..., Any] | None = None  # start_emulator(settings, world) -> Emulator (see Lazy)
     description: str = ""
     transports: tuple[str, ...] = field(default_factory=tuple)  # e.g. ("serial", "socket://")
 

@@ -40,6 +40,7 @@ from drivers.base import (
     DeviceLost,
     DeviceTimeout,
     DriverSpec,
+    Lazy,
     Setting,
     retry,
 )
@@ -317,13 +318,6 @@ def open_device(settings: dict[str, Any]) -> CanopenSensor:
     return CanopenSensor(DRIVER.complete(settings))
 
 
-def start_emulator(settings: dict[str, Any], world: Any) -> Any:
-    # Imported here so opening a real sensor never loads the emulated node.
-    from drivers.emulators.canopen_sensor import CanopenSensorEmulator
-
-    return CanopenSensorEmulator(DRIVER.complete(settings), world)
-
-
 SETTINGS = (
     Setting("interface", str, default="virtual", doc="python-can interface (virtual, socketcan, pcan, ...)"),
     Setting("channel", str, default="hilbench", doc="python-can channel (virtual: any shared name; socketcan: can0)"),
@@ -347,7 +341,7 @@ DRIVER = DriverSpec(
     roles=("sensor",),
     settings=SETTINGS,
     open=open_device,
-    emulator=start_emulator,
+    emulator=Lazy("drivers.emulators.canopen_sensor:start_emulator"),
     description="CANopen CiA 404 measuring device (displacement or temperature): SDO-configured TPDO1 "
                 "on SYNC, heartbeat supervised",
     transports=("python-can",),

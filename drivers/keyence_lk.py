@@ -25,7 +25,7 @@ import math
 import re
 from typing import Any
 
-from drivers.base import DeviceError, DriverSpec, Setting, retry
+from drivers.base import DeviceError, DriverSpec, Lazy, Setting, retry
 from drivers.serial_link import SerialLink, short
 
 ERROR_CODES: dict[str, str] = {
@@ -149,13 +149,6 @@ def open_device(settings: dict[str, Any]) -> KeyenceLK:
     return KeyenceLK(DRIVER.complete(settings))
 
 
-def start_emulator(settings: dict[str, Any], world: Any) -> Any:
-    """A running emulated LK-G controller on a pty (``.url``)."""
-    from drivers.emulators.keyence_lk import KeyenceLKEmulator
-
-    return KeyenceLKEmulator(DRIVER.complete(settings), world).start()
-
-
 SETTINGS = (
     Setting("url", str, required=True, doc="serial port or pyserial URL: /dev/ttyUSB0, a pty path, socket://host:port"),
     Setting("name", str, doc="device name in messages (default: keyence-lk (url))"),
@@ -176,7 +169,7 @@ DRIVER = DriverSpec(
     roles=("sensor",),
     settings=SETTINGS,
     open=open_device,
-    emulator=start_emulator,
+    emulator=Lazy("drivers.emulators.keyence_lk:start_emulator"),
     description="Keyence LK-G laser displacement sensor (LK-G3000/LK-G5000) over RS-232C",
     transports=("serial", "socket://"),
 )

@@ -37,6 +37,7 @@ from drivers.base import (
     DeviceLost,
     DeviceTimeout,
     DriverSpec,
+    Lazy,
     Setting,
     retry,
 )
@@ -287,13 +288,6 @@ def open_device(settings: dict[str, Any]) -> ModbusAIO:
     return ModbusAIO(DRIVER.complete(settings))
 
 
-def start_emulator(settings: dict[str, Any], world: Any) -> Any:
-    # Imported here so opening a real module never loads the server side.
-    from drivers.emulators.modbus_aio import ModbusAIOEmulator
-
-    return ModbusAIOEmulator(DRIVER.complete(settings), world)
-
-
 SETTINGS = (
     Setting("url", str, required=True, doc="tcp://host:port (Modbus TCP) or a serial port / pyserial URL such as /dev/ttyUSB0 or socket://host:port (RTU)"),
     Setting("baudrate", int, default=9600, doc="RTU only: bit/s"),
@@ -326,7 +320,7 @@ DRIVER = DriverSpec(
     roles=("actuator", "sensor"),
     settings=SETTINGS,
     open=open_device,
-    emulator=start_emulator,
+    emulator=Lazy("drivers.emulators.modbus_aio:start_emulator"),
     description="Modbus TCP/RTU analog I/O module (ADAM-6024 map by default): AO -> current amplifier, "
                 "AIs -> current monitor and displacement sensor",
     transports=("tcp://", "serial"),

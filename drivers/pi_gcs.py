@@ -35,6 +35,7 @@ from drivers.base import (
     DeviceLost,
     DeviceTimeout,
     DriverSpec,
+    Lazy,
     Setting,
     retry,
 )
@@ -426,13 +427,6 @@ def open_device(settings: dict[str, Any]) -> PIGCSController:
     return PIGCSController(DRIVER.complete(settings))
 
 
-def start_emulator(settings: dict[str, Any], world: Any) -> Any:
-    """A running emulated controller on a pty (``.url``), and on 127.0.0.1 TCP if ``tcp_port`` is set."""
-    from drivers.emulators.pi_gcs import PIGCSEmulator
-
-    return PIGCSEmulator(DRIVER.complete(settings), world).start()
-
-
 SETTINGS = (
     Setting("url", str, required=True, doc="serial port or pyserial URL: /dev/ttyUSB0, a pty path, socket://host:50000"),
     Setting("name", str, doc="device name in messages (default: pi-gcs (url))"),
@@ -465,7 +459,7 @@ DRIVER = DriverSpec(
     roles=("actuator", "sensor", "player"),
     settings=SETTINGS,
     open=open_device,
-    emulator=start_emulator,
+    emulator=Lazy("drivers.emulators.pi_gcs:start_emulator"),
     description="PI piezo controller (E-709/E-727 class), GCS 2.0 over RS-232, USB-serial or TCP",
     transports=("serial", "socket://"),
 )

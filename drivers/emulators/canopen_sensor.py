@@ -273,3 +273,10 @@ class CanopenSensorEmulator:
             node.nmt.stop_heartbeat()
         if self.network.bus is not None:
             self.network.disconnect()
+
+
+def start_emulator(settings: dict[str, Any], world: World) -> CanopenSensorEmulator:
+    """A running emulated CANopen node on a python-can virtual bus, backed by ``world``."""
+    from drivers.canopen_sensor import DRIVER
+
+    return CanopenSensorEmulator(DRIVER.complete(settings), world)

@@ -102,3 +102,10 @@ class KeyenceLKEmulator(LineServer):
         if head.startswith("M") and head[1:].isdigit():
             return f"ER,{head},22"  # M3, M9...: no such OUT
         return f"ER,{head},00"
+
+
+def start_emulator(settings: dict[str, Any], world: World) -> KeyenceLKEmulator:
+    """A running emulated LK-G controller on a pty (``.url``)."""
+    from drivers.keyence_lk import DRIVER
+
+    return KeyenceLKEmulator(DRIVER.complete(settings), world).start()

@@ -178,3 +178,10 @@ class ModbusAIOEmulator:
                 self._thread.join(timeout_s)
         if not self._thread.is_alive() and not self._loop.is_closed():
             self._loop.close()
+
+
+def start_emulator(settings: dict[str, Any], world: World) -> ModbusAIOEmulator:
+    """A running Modbus server on 127.0.0.1 (``.url``) backed by ``world``."""
+    from drivers.modbus_aio import DRIVER
+
+    return ModbusAIOEmulator(DRIVER.complete(settings), world)

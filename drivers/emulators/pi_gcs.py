@@ -507,3 +507,10 @@ class PIGCSEmulator(LineServer):
         super().close(timeout_s)
         if self._wave is not None:
             self._wave["thread"].join(timeout_s)
+
+
+def start_emulator(settings: dict[str, Any], world: World) -> PIGCSEmulator:
+    """A running emulated controller on a pty (``.url``), and on 127.0.0.1 TCP if ``tcp_port`` is set."""
+    from drivers.pi_gcs import DRIVER
+
+    return PIGCSEmulator(DRIVER.complete(settings), world).start()

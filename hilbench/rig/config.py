@@ -217,6 +217,15 @@ def _read_with_bases(path: Path, seen: tuple[Path, ...] = ()) -> tuple[str, dict
     text, data = read_toml(path)
     rig = data.get("rig")
     base_name = rig.get("extends") if isinstance(rig, dict) else None
+    if "extends" in data:  # a top-level `extends = "rig"` (before the first table) means the same
+        if base_name:
+            raise ConfigError("extends is given twice, at the top and in [rig]; give it once", where=str(path))
+        base_name = data.pop("extends")
+        if base_name == "" or not isinstance(base_name, str):
+            raise ConfigError(f"extends: expected a rig name or path, got {base_name!r}", where=str(path),
+                              hint="e.g. extends = \"piezo-demo\"; built-in rigs: `hilbench rigs`")
+        if isinstance(rig, dict):
+            rig["extends"] = base_name
     if not base_name:
         return text, data
     if not isinstance(base_name, str):
@@ -229,6 +238,8 @@ def _read_with_bases(path: Path, seen: tuple[Path, ...] = ()) -> tuple[str, dict
         raise ConfigError(f"[rig] extends: {base_name!r} extends itself in a loop", where=str(path))
     base_text, base_data = _read_with_bases(base_path, (*seen, path.resolve()))
     merged = _deep_merge(base_data, data)
+    if not isinstance(merged.get("rig"), dict):
+        raise ConfigError("[rig]: expected a table", where=str(path))
     merged["rig"] = {k: v for k, v in merged["rig"].items() if k != "extends"}
     return f"{text}\n# ---- extends {base_path.name} ----\n{base_text}", merged
 
@@ -242,7 +253,7 @@ def load_rig(name_or_path: str | Path) -> RigConfig:
         data,
         {"rig": Key("table", required=True), "actuator": Key("table", required=True),
          "sensors": Key("tables", required=True), "plant": Key("table"), "plan": Key("table"),
-         "devices": Key("table")},
+         "devices": Key("table"), "extends": Key("str", doc="base rig whose tables this file overrides")},
         file=file,
         table="",
     )

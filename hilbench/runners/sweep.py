@@ -1,12 +1,24 @@
 """The experiment runner: plays a checked plan on a rig into a recording, safely.
 
+One entry point, :func:`run_plan`; the rig chooses how samples are produced (``mode``):
+
+* ``lockstep`` - a simulated rig: chunks of commands through the plant in blocks (optionally paced
+  to real time with ``realtime``);
+* ``fixed-rate`` - per-sample devices: a loop paced by the wall clock with absolute deadlines,
+  lateness recorded per sample, a watchdog, sensor interlocks (:mod:`hilbench.runners.fixed_rate`);
+* ``block`` - a device with a wave generator and data recorder plays each run whole
+  (:mod:`hilbench.runners.block`).
+
+Whatever the mode:
+
 * The whole plan is checked against the actuator's limits before anything moves.
 * Runs stream to disk chunk by chunk (memory stays bounded however long a run is); the writer
   flushes at least once a second.
 * Ctrl-C and SIGTERM are held off: the handler only sets a flag, the runner finishes the chunk,
   makes the actuator safe, flushes and writes ``status = "aborted"`` (QCoDeS-style deferral).
-* Any exception makes the actuator safe and closes the run with ``status = "failed"`` and the
-  traceback in ``reason`` before it propagates.
+* Any exception (a device fault, an interlock, a stalled loop) makes the actuator safe and closes
+  the run with ``status = "failed"``; its ``reason`` starts with one line naming the device and
+  why and what was done about the actuator, then the traceback. The exception then propagates.
 """
 
 from __future__ import annotations
@@ -27,6 +39,9 @@ import numpy as np
 from hilbench.excitation.plan import PlannedRun, check_plan
 from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.rig.rig import Rig
+from hilbench.runners.block import can_play, run_block
+from hilbench.runners.faults import DeviceFault, SafeStop, summary
+from hilbench.runners.fixed_rate import lateness_channel, run_fixed_rate
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -82,6 +97,16 @@ def deferred_interrupts() -> Iterator[_StopRequest]:
             signal.signal(s, h)
 
 
+MODES = ("lockstep", "fixed-rate", "block")
+
+
+def select_mode(rig: Rig) -> str:
+    """``lockstep`` for a simulated plant, ``block`` for a Player measuring every channel, else ``fixed-rate``."""
+    if rig.lockstep is not None:
+        return "lockstep"
+    return "block" if can_play(rig) else "fixed-rate"
+
+
 def run_plan(
     rig: Rig,
     runs: list[PlannedRun],
@@ -92,81 +117,147 @@ def run_plan(
     progress: Progress | None = None,
     chunk_samples: int | None = None,
     on_event: Callable[[dict[str, Any]], None] | None = None,
+    mode: str | None = None,
+    pace: bool = True,
+    watchdog_periods: int | None = None,
 ) -> SweepResult:
     """Check the plan, then play each run on the rig into ``output`` (appended when it exists).
 
     ``on_event`` receives ``{"event": "run-started" | "flushed" | "run-ended", "run": group, ...}``;
-    a ``flushed`` event says how many samples of the run are on disk.
+    a ``flushed`` event says how many samples of the run are on disk. ``mode`` overrides
+    :func:`select_mode`. ``realtime`` paces the lock-step mode only. ``pace=False`` lets the
+    fixed-rate loop (and the rig's unrecorded ramps) run as fast as the devices answer: for emulated
+    rigs in tests only, never for hardware. ``watchdog_periods``: the fixed-rate loop's watchdog
+    trips after this many periods without a sample (default: 2 s worth).
     """
     def emit(event: str, group: str, **fields: Any) -> None:
         if on_event is not None:
             on_event({"event": event, "run": group, **fields})
 
+    mode = select_mode(rig) if mode is None else mode
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if mode == "lockstep" and rig.lockstep is None:
+        raise ValueError("lockstep mode needs a simulated rig (a LockstepPlant backend)")
+    if mode == "block" and not can_play(rig):
+        raise ValueError("block mode needs an actuator device with play() that measures every sensor channel")
+    if mode == "fixed-rate" and rig.lockstep is not None:
+        raise ValueError("fixed-rate mode needs per-sample devices; open a simulated rig with Rig(config, "
+                         "lockstep=False) to step it sample by sample")
     check_plan(runs, rig.actuator, rig.sample_rate_hz)
     realtime = rig.config.realtime if realtime is None else realtime
     if chunk_samples is None:
-        # Real time: 50 ms chunks keep the pacing smooth and the flushes frequent.
-        chunk_samples = max(1, int(rig.sample_rate_hz * 0.05)) if realtime else 65536
+        if mode == "lockstep":
+            # Real time: 50 ms chunks keep the pacing smooth and the flushes frequent.
+            chunk_samples = max(1, int(rig.sample_rate_hz * 0.05)) if realtime else 65536
+        else:
+            # 0.2 s: appends to the file are the loop's largest pauses; fewer of them, same flushing
+            chunk_samples = max(1, int(rig.sample_rate_hz * 0.2))
     writer = RecordingWriter(output)
     result = SweepResult(str(output))
-    channels = rig.channels()
+    channels = rig.channels() + ([lateness_channel()] if mode == "fixed-rate" else [])
     sweep_id = uuid.uuid4().hex
     previous_group = ""
-    with deferred_interrupts() as stop:
-        for index, planned in enumerate(runs, start=1):
-            if stop:
-                break
-            exc = planned.excitation
-            # Which run this one follows on the same actuator, and from which command the rig
-            # approached its first value: what a model needs to carry the actuator's memory over.
-            run = writer.begin_run(
-                planned.label, channels, experiment=experiment, excitation=exc.describe(),
-                sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
-                extra_attrs={"sweep": sweep_id, "previous_run": previous_group, "approach_from": rig.last_applied},
-            )
-            previous_group = run.group_name
-            n_total = exc.n_samples(rig.sample_rate_hz)
-            done = 0
-            emit("run-started", run.group_name, samples=n_total)
-            try:
-                first = next(exc.chunks(rig.sample_rate_hz, 1))
-                rig.start_run(float(first[0]))
-                t0 = time.monotonic()
-                for chunk in exc.chunks(rig.sample_rate_hz, chunk_samples):
-                    if stop:
-                        break
-                    applied = rig.apply(chunk)
-                    measured = rig.measure(applied)
-                    t = (done + np.arange(chunk.shape[0])) / rig.sample_rate_hz
-                    flushed_before = run.n_flushed
-                    run.append({"time": t, "input": applied, **measured})
-                    done += chunk.shape[0]
-                    if run.n_flushed != flushed_before:
+    paced_before = rig.pace
+    rig.pace = pace
+    try:
+        with deferred_interrupts() as stop:
+            for index, planned in enumerate(runs, start=1):
+                if stop:
+                    break
+                exc = planned.excitation
+                # Which run this one follows on the same actuator, and from which command the rig
+                # approached its first value: what a model needs to carry the actuator's memory over.
+                run = writer.begin_run(
+                    planned.label, channels, experiment=experiment, excitation=exc.describe(),
+                    sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
+                    extra_attrs={"sweep": sweep_id, "previous_run": previous_group,
+                                 "approach_from": rig.last_applied, "mode": mode},
+                )
+                previous_group = run.group_name
+                n_total = exc.n_samples(rig.sample_rate_hz)
+                emit("run-started", run.group_name, samples=n_total)
+                safe = SafeStop(rig, threading.Lock())
+                stats_attrs: dict[str, Any] = {}
+                flushed = {"n": 0}
+
+                def on_chunk(done: int, run: Any = run, index: int = index, planned: PlannedRun = planned,
+                             n_total: int = n_total, flushed: dict[str, int] = flushed) -> None:
+                    if run.n_flushed != flushed["n"]:
+                        flushed["n"] = run.n_flushed
                         emit("flushed", run.group_name, samples=run.n_flushed)
                     if progress is not None:
                         progress(index, planned.label, done, n_total)
-                    if realtime:
-                        lag = t0 + done / rig.sample_rate_hz - time.monotonic()
-                        if lag > 0:
-                            time.sleep(lag)
-                if stop:
-                    rig.stop(False)
-                    reason = f"interrupted by {stop.signal_name} after {done} of {n_total} samples; actuator ramped to rest"
-                    run.finish("aborted", reason)
-                    emit("run-ended", run.group_name, status="aborted", samples=done)
-                    result.runs.append(RunResult(planned.label, run.group_name, "aborted", done, reason))
-                    break
-                run.finish("complete")
-                emit("run-ended", run.group_name, status="complete", samples=done)
-                result.runs.append(RunResult(planned.label, run.group_name, "complete", done))
-            except BaseException as error:
+
                 try:
-                    rig.stop(False)
-                finally:
-                    reason = "".join(traceback.format_exception(error))
-                    run.finish("failed", reason)
-                    emit("run-ended", run.group_name, status="failed", samples=done)
-                    result.runs.append(RunResult(planned.label, run.group_name, "failed", done, reason))
-                raise
-        rig.stop(True)
+                    first = next(exc.chunks(rig.sample_rate_hz, 1))
+                    try:
+                        rig.start_run(float(first[0]))
+                    except Exception as error:
+                        if rig.lockstep is not None:
+                            raise
+                        raise DeviceFault(rig.actuator_name, rig.config.actuator.driver,
+                                          f"approach the run's first value {float(first[0]):g} "
+                                          f"{rig.actuator.unit}", error) from error
+                    if mode == "fixed-rate":
+                        done, stats = run_fixed_rate(
+                            rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
+                            watchdog_periods=watchdog_periods, on_chunk=on_chunk)
+                        stats_attrs = stats.attrs()
+                    elif mode == "block":
+                        done = run_block(rig, exc, run, stop=stop, chunk_samples=chunk_samples, on_chunk=on_chunk)
+                    else:
+                        done = _run_lockstep(rig, exc, run, stop=stop, chunk_samples=chunk_samples,
+                                             realtime=realtime, on_chunk=on_chunk)
+                    if stop:
+                        note = safe.make_safe()
+                        if not safe.ok:
+                            raise RuntimeError(note)
+                        reason = f"interrupted by {stop.signal_name} after {done} of {n_total} samples; {note}"
+                        run.finish("aborted", reason, extra_attrs=stats_attrs)
+                        emit("run-ended", run.group_name, status="aborted", samples=done)
+                        result.runs.append(RunResult(planned.label, run.group_name, "aborted", done, reason))
+                        break
+                    run.finish("complete", extra_attrs=stats_attrs)
+                    emit("run-ended", run.group_name, status="complete", samples=done)
+                    result.runs.append(RunResult(planned.label, run.group_name, "complete", done))
+                except BaseException as error:
+                    try:
+                        note = safe.make_safe()
+                    finally:
+                        done = run.n_samples
+                        reason = f"{summary(error)}; {note if safe.done else 'actuator not made safe'}\n\n" + \
+                            "".join(traceback.format_exception(error))
+                        run.finish("failed", reason, extra_attrs={**stats_attrs, "made_safe": bool(safe.ok)})
+                        emit("run-ended", run.group_name, status="failed", samples=done)
+                        result.runs.append(RunResult(planned.label, run.group_name, "failed", done, reason))
+                    if isinstance(error, DeviceFault):
+                        # the caller sees the driver's own exception (DeviceLost, DeviceTimeout, ...);
+                        # the recording's reason says which of the rig's devices it was
+                        raise error.error from None
+                    raise
+            rig.stop(True)
+    finally:
+        rig.pace = paced_before
     return result
+
+
+def _run_lockstep(rig: Rig, exc: Any, run: Any, *, stop: Any, chunk_samples: int, realtime: bool,
+                  on_chunk: Callable[[int], None]) -> int:
+    """The simulated rig: chunks of commands through the plant in blocks."""
+    done = 0
+    t0 = time.monotonic()
+    for chunk in exc.chunks(rig.sample_rate_hz, chunk_samples):
+        if stop:
+            break
+        applied = rig.apply(chunk)
+        measured = rig.measure(applied)
+        t = (done + np.arange(chunk.shape[0])) / rig.sample_rate_hz
+        run.append({"time": t, "input": applied, **measured})
+        done += chunk.shape[0]
+        on_chunk(done)
+        if realtime:
+            lag = t0 + done / rig.sample_rate_hz - time.monotonic()
+            if lag > 0:
+                time.sleep(lag)
+    return done

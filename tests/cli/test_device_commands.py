@@ -1,0 +1,134 @@
+"""`hilbench devices` and `hilbench emulate` through the real CLI."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import h5py
+import pytest
+from typer.testing import CliRunner
+
+from hilbench.cli import app
+from hilbench.rig import registry
+
+REPO = Path(__file__).resolve().parents[2]
+TEMPLATES = sorted((REPO / "configs" / "templates").glob("*.toml"))
+runner = CliRunner()
+SHIPPED = {"sim", "pi-gcs", "keyence-lk", "modbus-aio", "canopen-sensor"}
+
+
+def one_line_error(result, code: int = 2) -> str:
+    assert result.exit_code == code, result.output
+    assert "Traceback" not in result.output
+    errors = [line for line in result.stderr.strip().splitlines() if line.startswith("error: ")]
+    assert len(errors) == 1, result.stderr
+    return errors[0]
+
+
+def test_devices_json_lists_the_five_shipped_drivers_with_their_settings():
+    result = runner.invoke(app, ["devices", "--json"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    drivers = {d["name"]: d for d in document["drivers"]}
+    assert SHIPPED <= set(drivers)
+    assert isinstance(document["serial_ports"], list)
+    for name in SHIPPED - {"sim"}:
+        d = drivers[name]
+        assert d["emulator"] is True and d["roles"] and d["transports"] and d["description"], d
+        assert d["entry_point"].endswith(":DRIVER") and "error" not in d
+        assert d["settings"] and all({"name", "type", "required", "default", "doc"} <= set(s) for s in d["settings"])
+    pi = {s["name"]: s for s in drivers["pi-gcs"]["settings"]}
+    assert pi["url"]["required"] is True and pi["url"]["type"] == "str"
+    assert pi["baud"] == {"name": "baud", "type": "int", "required": False, "default": 115200,
+                          "doc": "bit/s (ignored by ptys and sockets)"}
+    can = {s["name"]: s for s in drivers["canopen-sensor"]["settings"]}
+    assert can["node_id"]["required"] is True and can["interface"]["default"] == "virtual"
+    assert drivers["modbus-aio"]["roles"] == ["actuator", "sensor"] and "tcp://" in drivers["modbus-aio"]["transports"]
+    assert drivers["sim"]["entry_point"] == "hilbench.sim.backend:DRIVER" and drivers["sim"]["settings"] == []
+
+
+def test_devices_text_names_every_driver_and_the_serial_ports():
+    result = runner.invoke(app, ["devices"])
+    assert result.exit_code == 0, result.output
+    for name in SHIPPED:
+        assert any(line.startswith(f"{name}  (") for line in result.stdout.splitlines()), name
+    assert "node_id" in result.stdout and "required" in result.stdout
+    assert result.stdout.strip().splitlines()[-1].startswith("serial ports: ")
+
+
+def test_devices_lists_a_third_party_driver_and_says_why_a_broken_one_cannot_load(monkeypatch):
+    from drivers.base import DriverSpec, Setting
+
+    spec = DriverSpec(name="thirdparty", roles=("sensor",), settings=(Setting("port", str, required=True, doc="where"),),
+                      open=lambda settings: None, description="a third party's sensor", transports=("serial",))
+    monkeypatch.setitem(sys.modules, "tests_thirdparty_driver", type("module", (), {"DRIVER": spec}))
+    monkeypatch.setitem(registry.BUILTIN, "thirdparty", "tests_thirdparty_driver:DRIVER")
+    monkeypatch.setitem(registry.BUILTIN, "broken", "tests_no_such_module:DRIVER")
+    registry.clear_cache()
+    try:
+        result = runner.invoke(app, ["devices", "--json"])
+    finally:
+        registry.clear_cache()
+    assert result.exit_code == 0, result.output
+    drivers = {d["name"]: d for d in json.loads(result.stdout)["drivers"]}
+    assert drivers["thirdparty"]["entry_point"] == "tests_thirdparty_driver:DRIVER"
+    assert drivers["thirdparty"]["settings"] == [{"name": "port", "type": "str", "required": True, "default": None,
+                                                  "doc": "where"}]
+    assert drivers["thirdparty"]["emulator"] is False
+    assert "cannot be loaded" in drivers["broken"]["error"] and "tests_no_such_module" in drivers["broken"]["error"]
+
+
+# -- emulate --------------------------------------------------------------------------------------------
+
+
+def test_emulate_refuses_a_simulated_rig_in_one_line():
+    line = one_line_error(runner.invoke(app, ["emulate", "gmm-issf-duhem", "--seconds", "0"]))
+    assert "gmm-issf-duhem.toml: a simulated rig" in line
+
+
+def test_emulate_refuses_a_missing_config_and_misplaced_options(tmp_path):
+    assert "no such file" in one_line_error(runner.invoke(app, ["emulate", str(tmp_path / "absent.toml")]))
+    if TEMPLATES:
+        line = one_line_error(runner.invoke(app, ["emulate", str(TEMPLATES[0]), "-e", "sine:amplitude=1"]))
+        assert "--excitation and --output go with --dry-run" in line
+
+
+@pytest.mark.skipif(not TEMPLATES, reason="no real-rig templates in configs/templates/")
+@pytest.mark.parametrize("template", TEMPLATES, ids=[t.stem for t in TEMPLATES])
+def test_emulate_prints_where_every_device_of_a_template_listens(template):
+    result = runner.invoke(app, ["emulate", str(template), "--seconds", "0.2", "--json"])
+    assert result.exit_code == 0, result.output
+    document = json.loads(result.stdout)
+    from hilbench.rig.config import load_rig
+
+    tables = load_rig(template).devices
+    assert set(document["devices"]) == set(tables)
+    for name, point in document["devices"].items():
+        assert point["driver"] == tables[name]["driver"]
+        url = point.get("url", "")
+        if url.startswith(("tcp://", "socket://")):
+            assert url.split("://")[1].startswith("127.0.0.1:")  # loopback only, never the real device's host
+        elif "url" in point:
+            assert url.startswith("/dev/")  # a pty
+        else:
+            assert point["interface"] == "virtual"
+
+
+@pytest.mark.skipif(not TEMPLATES, reason="no real-rig templates in configs/templates/")
+def test_emulate_dry_run_records_through_the_real_drivers(tmp_path):
+    out = tmp_path / "dry.h5"
+    result = runner.invoke(app, ["emulate", str(TEMPLATES[0]), "--dry-run", "-e",
+                                 "sine:amplitude=1,frequency_hz=5,cycles=1", "-o", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    dry = json.loads(result.stdout)["dry_run"]
+    assert dry["status"] == "complete" and dry["runs"][0]["samples"] > 0
+    with h5py.File(out, "r") as f:
+        (name,) = list(f["runs"])
+        run = f["runs"][name]
+        devices = json.loads(run.attrs["devices"])
+        assert run.attrs["status"] == "complete"
+        assert {d["driver"] for d in devices} <= SHIPPED - {"sim"}
+        output = run["output"][:]
+    assert output.max() - output.min() > 0  # the emulated plant moved and the real driver read it
