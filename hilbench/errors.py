@@ -1,8 +1,9 @@
 """Errors the user can fix.
 
 Every problem caused by input (a config, a plan, a data file, a command-line value) is raised as
-:class:`UserError`. The CLI prints it as one line plus an optional hint and exits with status 2;
-``--debug`` shows the traceback. Everything else is a bug and keeps its traceback.
+:class:`UserError`. The CLI prints it as one line, ``error: <where>: <message> (hint: <hint>)``, and
+exits with status 2; with ``--json`` it also prints ``{"error": ..., "hint": ..., "exit": 2}`` on
+stdout; ``--debug`` shows the traceback. Everything else is a bug and keeps its traceback.
 """
 
 from __future__ import annotations
@@ -23,6 +24,12 @@ class UserError(Exception):
     def line(self) -> str:
         text = f"{self.where}: {self.message}" if self.where else self.message
         return " ".join(text.split())  # one line, whatever the parts contained
+
+
+def error_line(message: str, hint: str | None = None) -> str:
+    """The one line an error is printed as: ``error: <message> (hint: <hint>)``."""
+    text = f"error: {message}" + (f" (hint: {hint})" if hint else "")
+    return " ".join(text.split())
 
 
 class ConfigError(UserError):

@@ -6,6 +6,7 @@ value the same kind of message: the file, the table and key, what was expected a
 
 from __future__ import annotations
 
+import difflib
 import math
 import sys
 from collections.abc import Callable, Mapping
@@ -130,14 +131,17 @@ def check_table(
         raise ConfigError(f"{where_table}: expected a table, got {_describe(data)}", where=file)
     unknown = [k for k in data if k not in schema]
     if unknown:
+        close = difflib.get_close_matches(str(unknown[0]), list(schema), n=1, cutoff=0.6)
         raise ConfigError(
-            f"{where_table}: unknown key {unknown[0]!r}; expected one of: {', '.join(schema)}", where=file
+            f"{where_table}: unknown key {unknown[0]!r}; expected one of: {', '.join(schema)}", where=file,
+            hint=f"did you mean {close[0]!r}?" if close else "remove it, or check the spelling against the keys listed",
         )
     out: dict[str, Any] = {}
     for name, key in schema.items():
         if name not in data:
             if key.required:
-                raise ConfigError(f"{where_table}: missing key {name!r} ({_expected(key)})", where=file)
+                raise ConfigError(f"{where_table}: missing key {name!r} ({_expected(key)})", where=file,
+                                  hint=f"add {name} = ... to {where_table}" + (f" ({key.doc})" if key.doc else ""))
             out[name] = key.default
             continue
         value = data[name]

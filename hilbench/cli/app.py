@@ -4,7 +4,10 @@ The commands live in the modules beside this one, grouped by what they work on.
 
 Conventions (DESIGN.md, "Command line"): every command that produces results takes ``--json`` and
 then prints exactly one JSON document on stdout; progress goes to stderr; an error the user can fix
-prints one line (and a hint) on stderr and exits with status 2, no traceback unless ``--debug``.
+prints one line, ``error: <where>: <message> (hint: <hint>)``, on stderr and exits with status 2,
+no traceback unless ``--debug``; with ``--json`` it also prints ``{"error", "hint", "exit"}`` on stdout.
+Command-line usage errors (an unknown option, a value of the wrong type) take the same form: the
+entry point :func:`run` runs the app outside click's standalone mode to print them so.
 """
 
 from __future__ import annotations
@@ -16,12 +19,13 @@ import traceback
 from collections.abc import Callable
 from datetime import datetime
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, Optional, TypeVar
 
 import typer
 
 from hilbench import __version__
-from hilbench.errors import UserError
+from hilbench import progress as _progress
+from hilbench.errors import UserError, error_line
 
 app = typer.Typer(
     name="hilbench",
@@ -34,33 +38,57 @@ app = typer.Typer(
 )
 
 DEFAULT_RIG = "piezo-demo"
-_state = {"debug": False}
+_state: dict[str, Any] = {"debug": False, "json": False}
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+def report_error(message: str, hint: str | None = None, code: int = 2, *, as_json: bool | None = None) -> int:
+    """Print an error: one line on stderr and, with --json, one JSON document on stdout."""
+    if as_json if as_json is not None else _state["json"]:
+        print_json({"error": " ".join(message.split()), "hint": hint, "exit": code})
+    sys.stderr.write(error_line(message, hint) + "\n")
+    sys.stderr.flush()
+    return code
+
+
 def fail(message: str, hint: str | None = None, code: int = 2) -> None:
-    typer.echo(f"error: {message}", err=True)
-    if hint:
-        typer.echo(f"hint: {hint}", err=True)
-    raise typer.Exit(code)
+    raise typer.Exit(report_error(message, hint, code))
 
 
 def user_errors(func: F) -> F:
-    """Turn :class:`UserError` into one line on stderr and exit status 2."""
+    """Turn :class:`UserError` (and a file the system refuses) into one line on stderr and exit status 2;
+    with ``--json`` (``as_json``) also a JSON document ``{"error", "hint", "exit"}`` on stdout."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        _state["json"] = bool(kwargs.get("as_json", False))
         try:
             return func(*args, **kwargs)
         except UserError as exc:
             if _state["debug"]:
                 traceback.print_exc()
             fail(exc.line(), exc.hint)
+        except OSError as exc:  # a path the system refuses: missing folder, permissions, full disk
+            if exc.filename is None:
+                raise
+            if _state["debug"]:
+                traceback.print_exc()
+            fail(f"{exc.filename}: {exc.strerror or exc.__class__.__name__}",
+                 "check the path and its permissions")
+        except MemoryError:
+            if _state["debug"]:
+                traceback.print_exc()
+            fail("out of memory", "use fewer operators or fewer samples, or raise --memory-limit")
         except KeyboardInterrupt:
             fail("interrupted", code=130)
 
     return wrapper  # type: ignore[return-value]
+
+
+def show_progress(quiet: bool) -> Any:
+    """A context in which long work shows progress on stderr (a terminal only, not with --quiet)."""
+    return _progress.display(_progress.wanted(quiet))
 
 
 def print_json(document: Any) -> None:
@@ -77,16 +105,27 @@ def _version(value: bool) -> None:
 @app.callback()
 def main_options(
     debug: bool = typer.Option(False, "--debug", help="Show tracebacks for errors."),
+    memory_limit: Optional[str] = typer.Option(
+        None, "--memory-limit", metavar="SIZE",
+        help="Largest memory a fit may need, e.g. 4GB, 512MB (default: $HILBENCH_MEMORY_LIMIT, else half the "
+        "machine's memory); a model spec whose estimate exceeds it is refused before anything is allocated.",
+    ),
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="Print the version."),
 ) -> None:
     _state["debug"] = debug
+    from hilbench.models.spec import set_memory_limit
+
+    try:
+        set_memory_limit(memory_limit)
+    except UserError as exc:
+        fail(exc.line(), exc.hint)
 
 
 class RunProgress:
     """A progress bar on stderr, one task per run."""
 
     def __init__(self, enabled: bool):
-        self.enabled = enabled
+        self.enabled = _progress.wanted(not enabled)  # a terminal only, not with --quiet
         self._bar: Any = None
         self._task: Any = None
         self._run = 0
@@ -128,5 +167,28 @@ def default_output(rig_name: str) -> Path:
 
 
 
+def run(argv: list[str] | None = None) -> int:
+    """The command line: run ``argv`` (default ``sys.argv[1:]``) and return the exit status.
+
+    Usage errors (an unknown option, a value of the wrong type) are printed like every other error:
+    one line on stderr, a JSON document on stdout when ``--json`` is among the arguments.
+    """
+    from typer._click import exceptions as click_exceptions  # typer's own copy of click
+
+    args = list(sys.argv[1:] if argv is None else argv)
+    command = typer.main.get_command(app)
+    _state["json"] = "--json" in args
+    try:
+        status = command.main(args=args, prog_name="hilbench", standalone_mode=False)
+    except click_exceptions.UsageError as exc:
+        where = exc.ctx.command_path if exc.ctx is not None else "hilbench"
+        return report_error(f"{where}: {exc.format_message()}", f"see '{where} --help'", 2, as_json=_state["json"])
+    except click_exceptions.ClickException as exc:
+        return report_error(exc.format_message(), None, exc.exit_code, as_json=_state["json"])
+    except typer.Abort:
+        return report_error("aborted", None, 130, as_json=_state["json"])
+    return status if isinstance(status, int) else 0
+
+
 def main() -> None:
-    app()
+    sys.exit(run())

@@ -12,6 +12,7 @@ from hilbench.cli.app import (
     RunProgress,
     app,
     print_json,
+    show_progress,
     user_errors,
 )
 from hilbench.cli.summaries import diagnosis_lines
@@ -53,7 +54,8 @@ def demo(
     summary = Recording(h5).summary()
     if not quiet:
         typer.echo(f"diagnosing {model} on {h5} ...", err=True)
-    diagnosis = run_diagnosis(h5, model, auto=True)
+    with show_progress(quiet):
+        diagnosis = run_diagnosis(h5, model, auto=True)
     report = write_report(diagnosis, output_dir / "demo-report")
     document = {
         "rig": rig_config.name,

@@ -14,6 +14,7 @@ from hilbench.cli.app import (
     app,
     default_output,
     print_json,
+    show_progress,
     user_errors,
 )
 from hilbench.errors import UserError
@@ -23,7 +24,11 @@ from hilbench.errors import UserError
 @user_errors
 def sweep(
     config: str = typer.Argument(..., help="Rig config: a TOML path or a built-in rig name (see `hilbench rigs`)."),
-    plan: Optional[Path] = typer.Option(None, "--plan", "-p", help="Plan file (TOML with [[runs]] tables)."),
+    plan: Optional[str] = typer.Option(
+        None, "--plan", "-p", metavar="FILE|NAME",
+        help="Plan file (TOML with [[runs]] tables), or the short name of a packaged plan of the papers, "
+        "e.g. 004-tracking (experiments/plans/paper-004-tracking.toml).",
+    ),
     excitation: list[str] = typer.Option(
         [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...",
         help="Run in compact form, e.g. 'sine:amplitude=3,frequency_hz=1,cycles=5'; '|' sweeps "
@@ -148,11 +153,19 @@ def import_(
         "for dSPACE exports, Y(1) or a signal name. Repeatable.",
     ),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar on stderr."),
 ) -> None:
-    """Import measured data (CSV, MATLAB, dSPACE ControlDesk .mat) into a recording."""
+    """Import measured data (CSV, MATLAB, dSPACE ControlDesk .mat) into a recording.
+
+    Header units are normalised (µm, μm, um, micron -> um; °C, deg C -> degC; Ω, ohm -> Ohm), in
+    UTF-8 or Latin-1 files alike; a column mapped with --map needs a unit, from the header or the
+    mapping (SRC=output[um]).
+    """
     from hilbench.recording.importers import import_files, parse_mapping
 
-    names = import_files(sources, output, run_names=run or None, rate_hz=rate, mapping=parse_mapping(map_))
+    mapping = parse_mapping(map_)
+    with show_progress(quiet):
+        names = import_files(sources, output, run_names=run or None, rate_hz=rate, mapping=mapping)
     if as_json:
         print_json({"file": str(output), "runs": names})
     else:

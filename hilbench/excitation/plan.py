@@ -19,6 +19,7 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -106,8 +107,46 @@ def plan_from_compact(specs: list[str]) -> list[PlannedRun]:
     return runs
 
 
+def _plans_folder() -> Path:
+    """experiments/plans as installed (package data hilbench.plans), else next to the source tree."""
+    try:
+        return Path(str(resources.files("hilbench.plans")))
+    except ModuleNotFoundError:
+        return Path(__file__).resolve().parents[2] / "experiments" / "plans"
+
+
+def builtin_plans() -> dict[str, Path]:
+    """The packaged plans of the papers by name (file stem, e.g. ``paper-004-tracking``)."""
+    return {p.stem: p for p in sorted(_plans_folder().glob("*.toml"))}
+
+
+def resolve_plan_path(name_or_path: str | Path) -> Path:
+    """A plan file by path, or a packaged plan by name: ``paper-004-tracking``, ``004-tracking`` or ``004``
+    (a unique prefix after ``paper-``), so plans work from any directory after ``pip install``."""
+    path = Path(name_or_path)
+    if path.exists():
+        return path
+    text = str(name_or_path)
+    plans = builtin_plans()
+    stem = Path(text).stem if text.endswith(".toml") else text
+    if Path(text).name != text and not path.exists():  # a path with folders: look for its file name too
+        stem = Path(text).stem
+    for candidate in (stem, f"paper-{stem}"):
+        if candidate in plans:
+            return plans[candidate]
+    matches = [name for name in plans if name.startswith(f"paper-{stem}-") or name.startswith(f"{stem}-")]
+    if len(matches) == 1:
+        return plans[matches[0]]
+    short = ", ".join(name.removeprefix("paper-") for name in plans)
+    if len(matches) > 1:
+        raise ConfigError(f"the plan name matches several packaged plans: {', '.join(matches)}", where=text,
+                          hint="give one of them in full")
+    raise ConfigError(f"no such file, and no packaged plan of that name; packaged plans: {short}", where=text,
+                      hint="give a TOML path, or a packaged plan's name such as 004-tracking")
+
+
 def load_plan_file(path: str | Path) -> list[PlannedRun]:
-    path = Path(path)
+    path = resolve_plan_path(path)
     _, data = read_toml(path)
     top = check_table(data, {"runs": Key("tables", required=True), "description": Key("str", default="")},
                       file=str(path), table="")

@@ -23,7 +23,9 @@ from scipy import optimize
 from threadpoolctl import threadpool_limits
 
 from hilbench.errors import UserError
+from hilbench import progress as _progress
 from hilbench.models.model import Model, RunData
+from hilbench.models.spec import check_fit_memory
 
 
 @dataclass
@@ -109,6 +111,7 @@ class _Problem:
         self.params = [p for p in model.shape_params() if p.upper > p.lower]
         self.log = np.array([p.log and p.lower > 0 for p in self.params], dtype=bool)
         self.evaluations = 0
+        self.on_evaluation: Callable[..., None] | None = None  # progress: called once per evaluation
         # The static columns depend neither on the dynamics' poles nor on the delay: cache them
         # while only those move.
         post = [e for e in (model.effect("dynamics"), model.effect("delay")) if e is not None]
@@ -151,6 +154,8 @@ class _Problem:
             # constants that follow the shape (FPMPI thresholds) are those of the final model
             self.model.finalize(self.train_parts)
         self.evaluations += 1
+        if self.on_evaluation is not None:
+            self.on_evaluation()
         A, lower, upper, names = self.design()
         if not np.all(np.isfinite(A)):
             return WeightSolution(np.zeros(A.shape[1]), math.inf), A, names
@@ -199,8 +204,10 @@ def fit_model(*args: Any, **kwargs: Any) -> FitReport:
     here are tall and thin, gain nothing from a few threads, and threads spinning on shared
     cores slowed them a hundredfold in measurements.
     """
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _fit_model(*args, **kwargs)
+    model = args[0] if args else kwargs["model"]
+    with threadpool_limits(limits=1, user_api="blas"), \
+            _progress.task(f"fit {model.spec}: evaluations of the weights", total=None) as advance:
+        return _fit_model(*args, on_evaluation=advance, **kwargs)
 
 
 def _fit_model(
@@ -215,17 +222,22 @@ def _fit_model(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
     start_from: Model | None = None,
+    on_evaluation: Callable[..., None] | None = None,
 ) -> FitReport:
     """Identify ``model`` on the training rows of ``runs``; sets its shape parameters and weights."""
     t0 = time.perf_counter()
     usable = [m & np.isfinite(r.output) for r, m in zip(runs, train_masks)]
     if not any(m.any() for m in usable):
         raise UserError("the training set is empty: no samples with a finite output")
+    # refuse a spec too large for memory before anything is allocated (the estimate and the limit)
+    check_fit_memory(model.base, model.effects, sum(len(r) for r in runs), sum(int(m.sum()) for m in usable),
+                     model.spec)
     # normalisation and data-dependent constants from the training rows only
     model.prepare(_training_parts(model, runs, usable))
     if start_from is not None:
         _copy_shape(start_from, model)
     problem = _Problem(model, runs, train_masks, max_rows=max_search_rows)
+    problem.on_evaluation = on_evaluation
     params = problem.params
     history: list[dict[str, Any]] = []
     starts = 0

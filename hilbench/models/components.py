@@ -24,6 +24,9 @@ import numpy as np
 
 from hilbench.errors import UserError
 from hilbench.models import kernels as MK
+from hilbench.models.options import Option
+
+_N_OPERATORS = "number of operators; sized by the memory a fit needs (see --memory-limit)"
 
 
 @dataclass
@@ -76,7 +79,8 @@ class Component:
     name: ClassVar[str] = ""
     role: ClassVar[str] = "effect"  # "base" or "effect"
     summary: ClassVar[str] = ""
-    options_schema: ClassVar[dict[str, type]] = {}
+    #: the options a spec may give, typed and bounded (checked by hilbench.models.spec)
+    options_schema: ClassVar[dict[str, Option]] = {}
 
     def __init__(self, options: dict[str, Any] | None = None):
         self.options = dict(options or {})
@@ -147,7 +151,7 @@ class OperatorBase(Component):
     """Shared machinery of the operator bases: M-play columns over thresholds with eta."""
 
     role = "base"
-    options_schema = {"n": int}
+    options_schema = {"n": Option("int", default=10, minimum=1, doc=_N_OPERATORS)}
     default_n = 10
     eta_fixed: ClassVar[float | None] = 1.0  # play; None: eta searched per operator (PMPI)
     one_sided = False
@@ -238,7 +242,8 @@ class PMPI(MPI):
 class PD(OperatorBase):
     name = "pd"
     summary = "PI with one-sided dead-zone operators (memoryless asymmetric shaping, additive form)"
-    options_schema = {"n": int, "n_dead_zone": int}
+    options_schema = {"n": Option("int", default=10, minimum=1, doc=_N_OPERATORS),
+                      "n_dead_zone": Option("int", default=4, minimum=0, maximum=64, doc="number of dead-zone terms")}
 
     def prepare(self, s: Signals) -> None:
         super().prepare(s)
@@ -263,7 +268,9 @@ class FPMPI(Component):
     name = "fpmpi"
     role = "base"
     summary = "fractional-polynomial-modified PI of 000: one-sided play of sum w_P,i u^e_i (eq. 1-5)"
-    options_schema = {"n": int, "terms": int}
+    options_schema = {"n": Option("int", default=10, minimum=1, doc=_N_OPERATORS),
+                      "terms": Option("int", default=8, minimum=2, maximum=8,
+                                      doc="terms of the fractional polynomial (exponents 0, 1, 2, 1/2, 3, 1/3, 4, 1/4)")}
     exponents_all = (0.0, 1.0, 2.0, 0.5, 3.0, 1.0 / 3.0, 4.0, 0.25)
 
     def prepare(self, s: Signals) -> None:
@@ -390,7 +397,7 @@ class DuhemM(DuhemG):
 class DuhemD(DuhemBase):
     name = "duhem-d"
     summary = "ISSF-Duhem with one-sided dead-zone shape operators (001 eq. 26-31), weights free"
-    options_schema = {"n": int}
+    options_schema = {"n": Option("int", default=6, minimum=1, doc="dead-zone operators per side")}
 
     def shape_params(self, s: Signals) -> list[ShapeParam]:
         span = float(np.max(np.abs(s.u))) or 1.0
@@ -420,7 +427,8 @@ class BoucWen(Component):
     name = "bouc-wen"
     role = "base"
     summary = "Bouc-Wen: z' = A u' - beta |u'||z|^(n-1) z - gamma u'|z|^n; y = k u + z (n = 1 by default)"
-    options_schema = {"n": float}
+    options_schema = {"n": Option("number", default=1.0, minimum=0.0, exclusive_minimum=True, maximum=20.0,
+                                  doc="Bouc-Wen exponent")}
 
     def prepare(self, s: Signals) -> None:
         if self.params:
@@ -458,7 +466,7 @@ class Asymmetry(Component):
 
     name = "asymmetry"
     summary = "memoryless polynomial v^2 ... v^order, order 4 by default (002 cubic, 004 PMPI): loops not centrally symmetric"
-    options_schema = {"order": int}
+    options_schema = {"order": Option("int", default=4, minimum=2, maximum=8, doc="highest power of the polynomial")}
 
     def _order(self) -> int:
         order = int(self.options.get("order", 4))
@@ -471,16 +479,39 @@ class Asymmetry(Component):
         return Columns.of(np.column_stack([s.v**k for k in powers]), [f"asym*v^{k}" for k in powers], hysteresis=True)
 
 
+def tanh_flattening(x: np.ndarray) -> np.ndarray:
+    """phi(x) = tanh(x) / x (1 at 0): the gain of s tanh(h / s) relative to h."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(np.abs(x) > 1e-8, np.tanh(x) / np.where(x == 0, 1.0, x), 1.0)
+
+
+def knee_flattening(x: np.ndarray, p: float) -> np.ndarray:
+    """phi(x) = (1 + |x|^p)^(-1/p): the gain of h / (1 + |h/s|^p)^(1/p) relative to h."""
+    return (1.0 + np.abs(x) ** p) ** (-1.0 / p)
+
+
 class Saturation(Component):
     name = "saturation"
     summary = "loop flattening at large drive: tanh(v/s) and the fractional terms sgn(v)|v|^(1/2), ^(1/3)"
-    options_schema = {"s": float, "form": str}
+    options_schema = {"s": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0, unit="normalised input",
+                                  doc="knee, fixed instead of searched"),
+                      "p": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0,
+                                  doc="knee sharpness (form=knee), fixed instead of searched"),
+                      "form": Option("choice", default="output", choices=("output", "knee", "input"),
+                                     doc="output: the hysteresis output saturates (tanh); knee: with a knee of "
+                                     "adjustable sharpness; input: memoryless terms alone")}
+    #: form -> the flattening phi(x) of the hysteresis output (x = v / s); ``input``: none
+    FORMS = ("output", "knee", "input")
 
     def prepare(self, s: Signals) -> None:
-        if str(self.options.get("form", "output")) not in ("output", "input"):
-            raise UserError(f"saturation(form={self.options['form']}): expected form=output or form=input")
+        form = str(self.options.get("form", "output"))
+        if form not in self.FORMS:
+            raise UserError(f"saturation(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
         if not self.params:
             self.params = [ShapeParam("s", 0.5, 0.05, 3.0, "normalised input", log=True, doc="tanh knee")]
+            if form == "knee":
+                # sharpness of the knee h / (1 + |h/s|^p)^(1/p): p = 1 soft, p -> inf a hard clip
+                self.params.append(ShapeParam("p", 2.0, 0.7, 8.0, "", log=True, doc="knee sharpness"))
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         v = s.v
@@ -492,13 +523,14 @@ class Saturation(Component):
         mats = [np.column_stack([np.tanh(v / self.param("s")), sq, cb])]
         names = ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"]
         lower = [0.0, 0.0, 0.0]
-        if str(self.options.get("form", "output")) == "output":
+        form = str(self.options.get("form", "output"))
+        if form in ("output", "knee"):
             # a saturating *output*: L tanh(h / L) = h phi(h / L), phi(x) = tanh(x) / x, with h the
             # hysteresis output, about G v; so the hysteresis columns flatten by phi(v / s) at large
             # drive. As copies times (phi - 1) with their own weights the model stays linear in them.
+            # The knee form flattens by phi(x) = (1 + |x|^p)^(-1/p), a knee of adjustable sharpness.
             x = v / self.param("s")
-            with np.errstate(divide="ignore", invalid="ignore"):
-                phi = np.where(np.abs(x) > 1e-8, np.tanh(x) / np.where(x == 0, 1.0, x), 1.0)
+            phi = knee_flattening(x, self.param("p")) if form == "knee" else tanh_flattening(x)
             for block in previous:
                 if block.hysteresis:
                     keep = [j for j, name in enumerate(block.names) if name != "offset"]
@@ -526,7 +558,9 @@ class Creep(Component):
 
     name = "creep"
     summary = "slow drift after input changes: Kelvin-Voigt elements on the input and the hysteresis output"
-    options_schema = {"n": int, "form": str}
+    options_schema = {"n": Option("int", default=2, minimum=1, maximum=12, doc="Kelvin-Voigt elements (time constants searched)"),
+                      "form": Option("choice", default="input", choices=("input", "output"),
+                                     doc="input: creep of the input; output: of the hysteresis output too")}
 
     def prepare(self, s: Signals) -> None:
         if str(self.options.get("form", "input")) not in ("output", "input"):
@@ -580,7 +614,14 @@ class RateDependence(Component):
 
     name = "rate-dependence"
     summary = "loop width and gain change with input rate: velocity damping, frequency polynomials (003)"
-    options_schema = {"form": str, "order": int, "waveform": str, "harmonics": int, "m": float}
+    options_schema = {"form": Option("choice", default="auto", choices=("auto", "damping", "frequency"),
+                                     doc="damping (003 eq. 6), frequency (k(f), c(f), eq. 8-13) or auto"),
+                      "order": Option("int", default=3, minimum=1, maximum=8, doc="order of the frequency polynomials"),
+                      "waveform": Option("choice", default="sine", choices=("sine", "triangle"),
+                                         doc="triangle applies the harmonic weights of 003 eq. 14-16"),
+                      "harmonics": Option("int", default=9, minimum=1, maximum=999, doc="harmonics of a triangle"),
+                      "m": Option("number", minimum=0.0, exclusive_minimum=True, maximum=10.0,
+                                  doc="damping exponent, fixed instead of searched")}
 
     def prepare(self, s: Signals) -> None:
         if not self.params:
@@ -763,8 +804,16 @@ class Dynamics(Component):
 
     name = "dynamics"
     summary = "linear dynamics after the hysteresis: second-order plant (002), first-order lag, or discrete TF (000)"
-    options_schema = {"kind": str, "natural_frequency_hz": float, "zeta": float, "corner_hz": float,
-                      "pairs": int, "zeros": int}
+    options_schema = {"kind": Option("choice", default="second-order", choices=("second-order", "first-order", "discrete"),
+                                     doc="second-order plant (002), first-order lag, discrete TF (000)"),
+                      "natural_frequency_hz": Option("number", minimum=0.0, exclusive_minimum=True, unit="Hz",
+                                                     doc="natural frequency, fixed instead of searched"),
+                      "zeta": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0,
+                                     doc="damping ratio, fixed instead of searched"),
+                      "corner_hz": Option("number", minimum=0.0, exclusive_minimum=True, unit="Hz",
+                                          doc="first-order corner frequency, fixed instead of searched"),
+                      "pairs": Option("int", default=2, minimum=1, maximum=8, doc="pairs of complex poles (discrete)"),
+                      "zeros": Option("int", default=2, minimum=0, maximum=8, doc="numerator coefficients (discrete)")}
 
     def prepare(self, s: Signals) -> None:
         if self.params:
@@ -826,7 +875,10 @@ class Delay(Component):
 
     name = "delay"
     summary = "pure time delay of amplifier, sensor or DAQ (fractional samples)"
-    options_schema = {"max_s": float, "seconds": float}
+    options_schema = {"max_s": Option("number", minimum=0.0, exclusive_minimum=True, maximum=60.0, unit="s",
+                                      doc="largest delay searched"),
+                      "seconds": Option("number", minimum=0.0, maximum=60.0, unit="s",
+                                        doc="the delay, fixed instead of searched (>= 0: a delay cannot lead)")}
 
     def prepare(self, s: Signals) -> None:
         if not self.params:

@@ -8,7 +8,6 @@ Any name that is neither a base nor an effect names an auxiliary channel of the 
 from __future__ import annotations
 
 import json
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,12 +17,8 @@ from scipy import signal as sps
 
 from hilbench import __version__
 from hilbench.errors import UserError
-from hilbench.schema import parse_scalar
 from hilbench.models import kernels as MK
 from hilbench.models.components import (
-    BASES,
-    EFFECT_ORDER,
-    EFFECTS,
     AuxChannel,
     Columns,
     Component,
@@ -35,90 +30,8 @@ MODEL_FORMAT = "hilbench-model"
 MODEL_FORMAT_VERSION = 1
 
 
-class SpecError(UserError):
-    """A model spec that cannot be built: says what is available."""
-
-
-_PART = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_\-]*)\s*(?:\((.*)\))?\s*$")
-
-
-def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
-    """``"pi(n=16)+creep"`` -> ``[("pi", {"n": 16}), ("creep", {})]``."""
-    parts: list[str] = []
-    depth, current = 0, ""
-    for ch in spec:
-        if ch == "(":
-            depth += 1
-        elif ch == ")":
-            depth -= 1
-        if ch == "+" and depth == 0:
-            parts.append(current)
-            current = ""
-        else:
-            current += ch
-    parts.append(current)
-    out = []
-    for part in parts:
-        match = _PART.match(part)
-        if not match:
-            raise SpecError(f"cannot read {part.strip()!r} in spec {spec!r}; expected NAME or NAME(key=value,...)")
-        options = {}
-        if match.group(2):
-            for item in filter(None, (x.strip() for x in match.group(2).split(","))):
-                key, eq, value = item.partition("=")
-                if not eq:
-                    raise SpecError(f"option {item!r} in {part.strip()!r}: expected key=value")
-                options[key.strip()] = parse_scalar(value)
-        out.append((match.group(1).lower() if match.group(1).lower() in {**BASES, **EFFECTS} else match.group(1),
-                    options))
-    return out
-
-
-def available_names() -> str:
-    return (f"bases: {', '.join(BASES)}; effects: {', '.join(EFFECTS)}; "
-            "or the name of an auxiliary channel of the recording (e.g. temperature, load)")
-
-
-def build_components(spec: str, channels: list[str] | None = None) -> tuple[Component, list[Component]]:
-    """Base and effects of a spec, validated; aux-channel effects need the channel in ``channels``."""
-    parts = split_spec(spec)
-    base_name, base_options = parts[0]
-    if base_name not in BASES:
-        hint = " (an effect cannot come first)" if base_name in EFFECTS else ""
-        raise SpecError(f"unknown base model {base_name!r}{hint} in spec {spec!r}; {available_names()}")
-    base = BASES[base_name](base_options)
-    _check_options(base, base_options, spec)
-    effects: list[Component] = []
-    seen = {base_name}
-    for name, options in parts[1:]:
-        if name in seen:
-            raise SpecError(f"{name!r} appears twice in spec {spec!r}")
-        seen.add(name)
-        if name in BASES:
-            raise SpecError(f"{name!r} is a base model; a spec has one base, then effects: {available_names()}")
-        if name in EFFECTS:
-            effect = EFFECTS[name](options)
-            _check_options(effect, options, spec)
-        elif name == "hysteresis":
-            raise SpecError("'hysteresis' is added by choosing a hysteretic base (pi, pmpi, ...) instead of linear")
-        else:
-            if channels is not None and name not in channels:
-                aux = [c for c in channels if c not in ("time", "input", "output")]
-                raise SpecError(
-                    f"{name!r} is neither a model nor an effect, and the recording has no channel {name!r}; "
-                    f"{available_names()}; channels here: {', '.join(aux) or 'none'}"
-                )
-            effect = AuxChannel(name, options)
-        effects.append(effect)
-    effects.sort(key=lambda e: EFFECT_ORDER.index(e.name if e.name in EFFECTS else "<aux>"))
-    return base, effects
-
-
-def _check_options(component: Component, options: dict[str, Any], spec: str) -> None:
-    for key in options:
-        if key not in component.options_schema:
-            allowed = ", ".join(component.options_schema) or "none"
-            raise SpecError(f"{component.name}: unknown option {key!r} in spec {spec!r}; options: {allowed}")
+# Spec parsing and validation live in hilbench.models.spec; imported here for existing callers.
+from hilbench.models.spec import SpecError, available_names, build_components, split_spec  # noqa: E402, F401
 
 
 @dataclass
@@ -410,7 +323,8 @@ class Model:
         weights = data["parameters"]["weights"]
         model.weight_names = [w["name"] for w in weights]
         model.weights = np.array([float(w["value"]) for w in weights])
-        model.info = {k: v for k, v in data.items() if k in ("fitted_on", "metrics", "fit", "train", "validation")}
+        model.info = upgrade_model_document(
+            {k: v for k, v in data.items() if k in ("fitted_on", "metrics", "fit", "train", "validation")})
         return model
 
     @classmethod
@@ -422,7 +336,29 @@ class Model:
             raise UserError("file not found", where=str(path)) from None
         except json.JSONDecodeError as exc:
             raise UserError(f"not valid JSON: {exc}", where=str(path)) from None
-        return cls.from_dict(data, where=str(path))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise UserError(f"cannot read ({exc.__class__.__name__})", where=str(path)) from None
+        if not isinstance(data, dict):
+            raise UserError("not a hilbench model (expected a JSON object)", where=str(path))
+        try:
+            return cls.from_dict(data, where=str(path))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise UserError(f"not a valid hilbench model file ({exc.__class__.__name__}: {exc})", where=str(path),
+                            hint="write it again with `hilbench fit ... -o FIT.json`") from None
+
+
+#: metric keys renamed in hilbench 0.1 (the papers' MAE is the maximum absolute error): old -> new
+RENAMED_METRIC_KEYS = {"mae": "max_abs_error", "mad": "mean_abs_error"}
+
+
+def upgrade_model_document(value: Any) -> Any:
+    """A model file's document with the metric keys of files written before 0.1 renamed, at any depth."""
+    if isinstance(value, dict):
+        return {RENAMED_METRIC_KEYS.get(k, k) if isinstance(k, str) else k: upgrade_model_document(v)
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [upgrade_model_document(v) for v in value]
+    return value
 
 
 def _json_default(value: Any) -> Any:

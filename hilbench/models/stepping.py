@@ -103,7 +103,8 @@ P_VDOT_MAX = 12
 P_F_REF = 13
 P_DELAY_FRAC = 14
 P_DYN_B0 = 15  # b[0] (the whole filter when it is a pure gain)
-N_P = 16
+P_SAT_P = 16  # sharpness of the saturation knee (form=knee)
+N_P = 17
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
 X_STARTED = 0
@@ -228,9 +229,12 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
         X[c + 1] = sv * math.sqrt(av)
         X[c + 2] = sv * av ** (1.0 / 3.0)
         c += 3
-        if sat == 2:  # output form: copies of the hysteresis columns times phi(v/s) - 1
+        if sat >= 2:  # output forms: copies of the hysteresis columns times phi(v/s) - 1
             xs = v / P[P_SAT_S]
-            phi = math.tanh(xs) / xs if abs(xs) > 1e-8 else 1.0
+            if sat == 3:  # knee of sharpness p
+                phi = (1.0 + abs(xs) ** P[P_SAT_P]) ** (-1.0 / P[P_SAT_P])
+            else:
+                phi = math.tanh(xs) / xs if abs(xs) > 1e-8 else 1.0
             for i in range(I[I_NKPRE]):
                 X[c] = X[xk + i] * (phi - 1.0)
                 c += 1
@@ -464,9 +468,12 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     sat = model.effect("saturation")
     n_sat = 0
     if sat is not None:
-        output_form = str(sat.options.get("form", "output")) == "output"
-        I[I_SAT] = 2 if output_form else 1
+        form = str(sat.options.get("form", "output"))
+        output_form = form in ("output", "knee")
+        I[I_SAT] = {"output": 2, "knee": 3}.get(form, 1)
         f.P[P_SAT_S] = sat.param("s")
+        if form == "knee":
+            f.P[P_SAT_P] = sat.param("p")
         n_sat = 3 + (nba - 1 if output_form else 0)
     H = nba + n_sat
     I[I_H] = H

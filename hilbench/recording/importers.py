@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from hilbench import progress
 from hilbench.errors import DataError
 from hilbench.recording.hdf5 import CANONICAL_CHANNELS, RecordingWriter, check_recording
 
@@ -85,6 +86,84 @@ class _Column:
     aliases: tuple[str, ...] = ()  # other keys that address it (header text with unit, dSPACE names)
 
 
+# -- text and units ------------------------------------------------------------------------
+
+
+def decode_text(raw: bytes) -> str:
+    """Text of a CSV file in UTF-8 (with or without BOM), UTF-16 (with BOM), Windows-1252 or Latin-1.
+
+    Decoded line by line where the whole file is not UTF-8, so one Latin-1 line (a comment written
+    by another tool) does not garble the UTF-8 header; "Âµm"-style double encodings are repaired
+    in :func:`normalize_unit`.
+    """
+    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
+        return raw.decode("utf-16")
+    if raw.startswith(b"\xef\xbb\xbf"):
+        raw = raw[3:]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError:
+        pass
+    lines = []
+    for line in raw.split(b"\n"):
+        try:
+            lines.append(line.decode("utf-8"))
+        except UnicodeDecodeError:
+            try:
+                lines.append(line.decode("cp1252"))
+            except UnicodeDecodeError:
+                lines.append(line.decode("latin-1"))
+    return "\n".join(lines)
+
+
+_UNIT_WORDS = {
+    "micron": "um", "microns": "um", "micrometer": "um", "micrometers": "um", "micrometre": "um",
+    "micrometres": "um", "mum": "um", "degc": "degC", "deg c": "degC", "deg_c": "degC", "celsius": "degC",
+    "°c": "degC", "ºc": "degC", "˚c": "degC", "c°": "degC", "ohm": "Ohm", "ohms": "Ohm", "kohm": "kOhm",
+    "mohm": "mOhm", "sec": "s", "secs": "s", "second": "s", "seconds": "s", "volt": "V", "volts": "V",
+    "amp": "A", "amps": "A", "ampere": "A", "newton": "N", "newtons": "N", "hz": "Hz", "khz": "kHz",
+}
+
+
+def _example_unit(channel: str) -> str:
+    return {"input": "V", "output": "um", "time": "s"}.get(channel) or CANONICAL_CHANNELS.get(channel, ("",))[0] or "unit"
+
+
+_RUN_NAME = re.compile(r"[A-Za-z0-9_.+=-][A-Za-z0-9_.+=@ -]*")
+MAX_RUN_NAME = 100
+
+
+def check_run_name(name: str, where: str = "--run") -> str:
+    """A run label: letters, digits, ``_ . + = - @`` and spaces, 1-100 characters (it names an HDF5 group)."""
+    if not isinstance(name, str) or not name.strip():
+        raise DataError("empty run name", where=where, hint="e.g. --run 20hz")
+    if len(name) > MAX_RUN_NAME or not _RUN_NAME.fullmatch(name):
+        raise DataError(f"run name {name!r}: expected 1-{MAX_RUN_NAME} letters, digits, spaces or _ . + = - @ "
+                        "(no '/', which would nest HDF5 groups)", where=where, hint="e.g. --run 20hz")
+    return name
+
+
+def normalize_unit(unit: str) -> str:
+    """One spelling per unit: µm, μm, um, micron -> um; °C, deg C -> degC; Ω, ohm -> Ohm; µs -> us.
+
+    Repairs UTF-8 text that was decoded as Latin-1 on the way ("Âµm", "Â°C", "Î©").
+    """
+    text = unit.strip()
+    if any(marker in text for marker in ("Â", "Ã", "Î", "Ï")):
+        for codec in ("cp1252", "latin-1"):
+            try:
+                text = text.encode(codec).decode("utf-8")
+                break
+            except (UnicodeEncodeError, UnicodeDecodeError):
+                continue
+    text = unicodedata.normalize("NFKC", text)  # micro sign -> Greek mu, ohm sign -> Greek omega
+    word = _UNIT_WORDS.get(text.lower())
+    if word is not None:
+        return word
+    text = text.replace("μ", "u").replace("Ω", "Ohm").replace("°C", "degC").replace("ºC", "degC")
+    return text.replace("°", "deg").replace("º", "deg")
+
+
 # -- mapping ---------------------------------------------------------------------------------
 
 
@@ -98,7 +177,10 @@ def parse_target(value: str, where: str = "--map") -> tuple[str, str | None]:
             f"{value!r} is not a channel name (expected NAME or NAME[unit], NAME of letters, digits, _ . + -)",
             where=where,
         )
-    return m.group(1), m.group(2)
+    unit = m.group(2)
+    if unit is not None and not unit.strip():
+        raise DataError(f"{value!r}: empty unit in brackets", where=where, hint="e.g. output[um], input[V], time[s]")
+    return m.group(1), normalize_unit(unit) if unit is not None else None
 
 
 def parse_mapping(items: list[str]) -> dict[str, str]:
@@ -163,10 +245,7 @@ def _sniff_delimiter(line: str) -> str:
 
 def _csv_columns(raw: bytes, where: str) -> tuple[list[_Column], list[int], bool]:
     """Split a delimited text file into columns of text cells; returns (columns, line numbers, has header)."""
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        text = raw.decode("latin-1")
+    text = decode_text(raw)
     lines = text.splitlines()
     first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
     if first is None:
@@ -199,6 +278,7 @@ def _csv_columns(raw: bytes, where: str) -> tuple[list[_Column], list[int], bool
             m = _HEADER_RE.fullmatch(header_cells[j])
             assert m is not None  # the pattern matches any text
             raw_name, unit = m.group(1), m.group(2) if m.group(2) is not None else m.group(3)
+            unit = normalize_unit(unit) if unit is not None else None
             name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", raw_name).strip("_") or None
             if name is not None and not _CHANNEL_RE.fullmatch(name):
                 name = f"c_{name}"
@@ -307,7 +387,7 @@ def _dspace_columns(var: str, capture: Any, where: str) -> tuple[list[_Column], 
         if data is None:
             raise DataError(f"capture {var!r}: Y({i}).Data is not a numeric vector", where=where)
         unit = getattr(y, "Unit", "")
-        unit = unit if isinstance(unit, str) and unit else None
+        unit = normalize_unit(unit) if isinstance(unit, str) and unit.strip() else None
         # Addressable by any trailing path (Måling/In1, In1) or the block name alone.
         trailing = {"/".join(parts[k:]) for k in range(len(parts))}
         without_port = {"/".join(parts[k:-1]) for k in range(len(parts) - 1)}
@@ -370,6 +450,7 @@ class _Channels:
     units: dict[str, str] = field(default_factory=dict)
     descriptions: dict[str, str] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
+    unitless: list[str] = field(default_factory=list)  # mapped columns with no unit in file or mapping
 
 
 def _pick(
@@ -412,6 +493,8 @@ def _pick(
             bad = int(np.flatnonzero(~np.isfinite(values))[0])
             raise DataError(f"{col.label} ({name}): {values[bad]} at element {bad + 1}, expected a finite number",
                             where=where)
+        if unit is None and col.unit is None and mapped:
+            out.unitless.append(f"{col.key}={name}")
         if unit is None:
             unit = col.unit if col.unit is not None else CANONICAL_CHANNELS.get(name, ("", ""))[0]
         description = f"imported from {path.name}, {col.label}"
@@ -489,6 +572,13 @@ def load_source(
     if lengths["input"] == 0:
         raise DataError("no samples", where=where)
     rate = _add_time(ch, rate_hz, line_numbers, where)
+    if ch.unitless:
+        first = ch.unitless[0]
+        raise DataError(
+            f"--map {first}: the column has no unit in the file and the mapping gives none",
+            where=where,
+            hint=f"give the unit in the mapping, e.g. --map {first}[{_example_unit(first.split('=', 1)[1])}]",
+        )
 
     order = ["time", "input", "output"] + [k for k in ch.data if k not in ("time", "input", "output")]
     digest = _sha256(raw)
@@ -542,17 +632,34 @@ def import_files(
         raise DataError("no files to import")
     if run_names is not None and len(run_names) != len(sources):
         raise DataError(f"got {len(run_names)} run names for {len(sources)} files; give one per file", where="--run")
+    for name in run_names or []:
+        check_run_name(name)
     out = Path(output)
-    runs = [
-        load_source(src, label=None if run_names is None else run_names[i], rate_hz=rate_hz, mapping=mapping)
-        for i, src in enumerate(sources)
-    ]
+    if out.suffix.lower() not in (".h5", ".hdf5", ".hdf", ".he5"):
+        raise DataError(f"expected a recording file ending in .h5, got {out.name!r}", where=str(out),
+                        hint="e.g. -o measured.h5")
+    runs = []
+    with progress.task(f"import {len(sources)} file(s)", total=2 * len(sources)) as advance:
+        for i, src in enumerate(sources):
+            advance(0, f"import: reading {Path(src).name}")
+            runs.append(load_source(src, label=None if run_names is None else run_names[i], rate_hz=rate_hz,
+                                    mapping=mapping))
+            advance(1)
+        advance(0, f"import: writing {out.name}")
+        return _write_runs(runs, out, experiment, advance)
+
+
+def _write_runs(runs: list[ImportedRun], out: Path, experiment: str, advance: Any) -> list[str]:
     if out.exists():
         if out.is_dir():
             raise DataError("is a directory, expected a recording file (.h5)", where=str(out))
         check_recording(out)
         writer = RecordingWriter(out)
-        return [_write(writer, run, experiment) for run in runs]
+        written = []
+        for run in runs:
+            written.append(_write(writer, run, experiment))
+            advance(1)
+        return written
 
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
@@ -561,7 +668,10 @@ def import_files(
     tmp.unlink()  # RecordingWriter creates the file itself
     try:
         writer = RecordingWriter(tmp)
-        names = [_write(writer, run, experiment) for run in runs]
+        names = []
+        for run in runs:
+            names.append(_write(writer, run, experiment))
+            advance(1)
         os.replace(tmp, out)
     finally:
         tmp.unlink(missing_ok=True)

@@ -428,7 +428,7 @@ def _metrics_section(d: Diagnosis) -> str:
                 row.append((_e(_num((res.metrics.get(role) or {}).get(key, float("nan")))), "num"))
         rows.append(row)
     unit = _e(d.result.output_unit)
-    return (f"<h2>Metrics</h2><p class='meta'>e = model - measured; rmse, mse, mae, mad in {unit} "
+    return (f"<h2>Metrics</h2><p class='meta'>e = model - measured; rmse, mse, max_abs_error, mean_abs_error in {unit} "
             f"(mse in {unit}²), *_pct in %. Split: {_e(d.result.split)}</p>" + _table(head, rows))
 
 

@@ -81,7 +81,7 @@ def _draw(result: FitResult, run: FitRun, ax_loop: Axes, ax_err: Axes, max_point
         if mask.any():
             m = run.metrics.get(role) or {}
             ax_err.plot(t[::step], e, color=color, lw=0.6,
-                        label=f"{role}: rmse {m.get('rmse', float('nan')):.3g}, max {m.get('mae', float('nan')):.3g}")
+                        label=f"{role}: rmse {m.get('rmse', float('nan')):.3g}, max |e| {m.get('max_abs_error', float('nan')):.3g}")
     unused = ~(run.train | run.validation)
     if unused.any():
         ax_err.plot(t[::step], np.where(unused, error, np.nan)[::step], color="0.6", lw=0.6, label="unused")

@@ -144,7 +144,7 @@ def test_pi_recovers_plant_and_parameters(pi_h5):
     """PI on a PI plant: validation error at the sensor noise, weights those of the plant."""
     result = fit(pi_h5, "pi")
     val = result.metrics["validation"]
-    assert 0.7 * NOISE_UM < val["rmse"] < 1.3 * NOISE_UM and val["mae"] < 6 * NOISE_UM
+    assert 0.7 * NOISE_UM < val["rmse"] < 1.3 * NOISE_UM and val["max_abs_error"] < 6 * NOISE_UM
     # plant: y = u + 0.5 play(u, 0.5 V) + 0.3 play(u, 1 V) + 0.2 play(u, 2 V); the model works in
     # v = u / 5 V, so its weights are the plant's times 5 V, at thresholds 0.1, 0.2, 0.4
     w = {p["name"]: p["value"] for p in result.model.to_dict()["parameters"]["weights"]}
@@ -162,7 +162,7 @@ def test_train_test_by_run_names(pi_h5):
     assert result.metrics["validation"]["rmse"] < 1.5 * NOISE_UM
     # the 5 V run starts with the memory the 3 V run left: without chaining its start is off by
     # the play operators' stored output (sum of w r = 0.95 um)
-    chained = result.metrics["validation"]["mae"]
+    chained = result.metrics["validation"]["max_abs_error"]
     fresh = [RunData(r.data.input, r.data.output, r.data.aux, r.data.sample_rate_hz) for r in result.runs]
     unchained = np.max(np.abs(result.model.simulate_runs(fresh)[1] - result.runs[1].data.output))
     assert chained < 6 * NOISE_UM and unchained > 0.3
@@ -329,3 +329,21 @@ def test_unknown_run_name(pi_h5):
 def test_missing_model_file(pi_h5, tmp_path):
     line = run_error("fit", str(pi_h5), "--model", str(tmp_path / "nothere.json"))
     assert "nothere.json: file not found" in line
+
+
+def test_model_file_with_the_old_metric_keys_loads_renamed(pi_h5, tmp_path):
+    # files written before the rename carry mae (max |e|) and mad (mean |e|)
+    original = fit(pi_h5, "pi", train=["1"])
+    document = json.loads(original.save(tmp_path / "new.json").read_text(encoding="utf-8"))
+    for role in ("train", "validation"):
+        m = document["metrics"][role]
+        m["mae"], m["mad"] = m.pop("max_abs_error"), m.pop("mean_abs_error")
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(document), encoding="utf-8")
+    model = Model.load(old)
+    for role in ("train", "validation"):
+        loaded = model.info["metrics"][role]
+        assert "mae" not in loaded and "mad" not in loaded
+        assert loaded["max_abs_error"] == original.metrics[role]["max_abs_error"]
+        assert loaded["mean_abs_error"] == original.metrics[role]["mean_abs_error"]
+        assert loaded["max_abs_error"] >= loaded["mean_abs_error"]

@@ -374,7 +374,7 @@ def test_mat_refuses_garbage(tmp_path: Path) -> None:
 def test_dspace_by_index_and_by_name(tmp_path: Path) -> None:
     src = _dspace_mat(tmp_path / "20_hz.mat", n=50)
     by_index = load_source(src, mapping={"Y(3)": "input[V]", "Y(1)": "output[um]"})
-    by_name = load_source(src, mapping={"Pådrag": "input[V]", "Måling": "output[um]", "Måling_delay": "delayed"})
+    by_name = load_source(src, mapping={"Pådrag": "input[V]", "Måling": "output[um]", "Måling_delay": "delayed[um]"})
     for run in (by_index, by_name):
         assert run.sample_rate_hz == pytest.approx(1000.0)
         np.testing.assert_allclose(run.data["time"], np.arange(50) / 1000.0)
@@ -448,3 +448,63 @@ def test_real_dspace_mat(tmp_path: Path) -> None:
     assert -101.0 <= u.min() <= -85.0 and 85.0 <= u.max() <= 91.0
     y = run.channel("output")
     assert -7.0 < y.min() < -5.0 and 3.0 < y.max() < 4.5
+
+
+# -- encodings and units ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("encoding", ["utf-8", "utf-8-sig", "latin-1", "cp1252"])
+def test_header_units_with_micro_and_degree_in_any_encoding(tmp_path: Path, encoding: str) -> None:
+    header = "time[s],input[V],output[µm],temperature[°C],bridge(kΩ)" if encoding.startswith("utf") else \
+        "time[s],input[V],output[µm],temperature[°C],bridge(kohm)"
+    src = tmp_path / "enc.csv"
+    src.write_bytes((header + "\n0,1,2,20,1\n0.1,2,3,21,1\n0.2,3,4,22,1\n").encode(encoding))
+    run = load_source(src)
+    assert run.units == {"time": "s", "input": "V", "output": "um", "temperature": "degC", "bridge": "kOhm"}
+
+
+def test_one_latin1_line_does_not_garble_a_utf8_header(tmp_path: Path) -> None:
+    src = tmp_path / "mixed.csv"
+    src.write_bytes("time[s],input[V],output[μm]\n".encode() + b"# measured at 20 \xb0C\n0,1,2\n0.1,2,3\n")
+    assert load_source(src).units["output"] == "um"
+
+
+@pytest.mark.parametrize("spelled, normal", [("µm", "um"), ("μm", "um"), ("um", "um"), ("micron", "um"),
+                                             ("Micrometre", "um"), ("Âµm", "um"), ("°C", "degC"), ("deg C", "degC"),
+                                             ("Â°C", "degC"), ("Ω", "Ohm"), ("Ω", "Ohm"), ("ohms", "Ohm"),
+                                             ("µs", "us"), ("mm", "mm"), ("V", "V")])
+def test_units_normalised(spelled: str, normal: str) -> None:
+    from hilbench.recording.importers import normalize_unit
+
+    assert normalize_unit(spelled) == normal
+
+
+def test_map_target_unit_normalised_and_time_in_microseconds(tmp_path: Path) -> None:
+    src = _csv_with_rows(tmp_path / "m.csv", "a,b,c", ["0,1,2", "100,2,3", "200,3,4"])
+    run = load_source(src, mapping={"a": "time[µs]", "b": "input[V]", "c": "output[micron]"})
+    assert run.units["output"] == "um" and run.units["time"] == "s"
+    assert run.sample_rate_hz == pytest.approx(1e4)
+
+
+def test_mapped_column_without_a_unit_is_refused(tmp_path: Path) -> None:
+    src = _csv_with_rows(tmp_path / "nounit.csv", "t,u,y", ["0,1,2", "0.1,2,3", "0.2,3,4"])
+    with pytest.raises(DataError) as exc:
+        import_files([src], tmp_path / "out.h5", mapping={"t": "time[s]", "u": "input[V]", "y": "output"})
+    assert "nounit.csv: --map y=output: the column has no unit" in str(exc.value)
+    assert "--map y=output[um]" in (exc.value.hint or "") and not (tmp_path / "out.h5").exists()
+
+
+def test_run_names_that_would_nest_groups_are_refused(tmp_path: Path) -> None:
+    src = _csv_with_rows(tmp_path / "ok.csv", "time[s],input[V],output[um]", ["0,1,2", "0.1,2,3"])
+    _refused(tmp_path, src, "--run: run name 'a/b'", run_names=["a/b"])
+
+
+@pytest.mark.parametrize("unit", ["µm", "μm", "Âµm", "micron"])
+def test_dspace_units_with_micro_normalised(tmp_path: Path, unit: str) -> None:
+    src = tmp_path / "units.mat"
+    y = np.zeros((1, 2), dtype=[("Name", "O"), ("Data", "O"), ("Unit", "O")])
+    y[0, 0]["Name"], y[0, 0]["Data"], y[0, 0]["Unit"] = '"Model Root"/"u"/"In1"', np.arange(4.0), "V"
+    y[0, 1]["Name"], y[0, 1]["Data"], y[0, 1]["Unit"] = '"Model Root"/"y"/"In1"', np.arange(4.0), unit
+    scipy.io.savemat(src, {"cap": {"X": {"Data": np.arange(4.0) / 100}, "Y": y}})
+    run = load_source(src, mapping={"Y(1)": "input", "Y(2)": "output"})
+    assert run.units["output"] == "um" and run.units["input"] == "V"

@@ -1,0 +1,1 @@
+"""The papers' procedures as plans (TOML), installed as the package data ``hilbench.plans``."""
