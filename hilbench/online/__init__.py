@@ -5,7 +5,14 @@
 * :mod:`hilbench.online.oiir`: paper 000's identifier, FPMPI front end + OIIR weights by RLS.
 """
 
-from hilbench.online.oiir import OIIR, FPMPIFrontEnd, re_n2_pct, re_ninf_pct
+from hilbench.online.oiir import (
+    OIIR,
+    FPMPIFrontEnd,
+    offline_hammerstein,
+    persistence,
+    re_n2_pct,
+    re_ninf_pct,
+)
 from hilbench.online.rls import RLS
 
-__all__ = ["RLS", "OIIR", "FPMPIFrontEnd", "re_n2_pct", "re_ninf_pct"]
+__all__ = ["RLS", "OIIR", "FPMPIFrontEnd", "re_n2_pct", "re_ninf_pct", "persistence", "offline_hammerstein"]

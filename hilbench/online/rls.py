@@ -15,8 +15,11 @@ State (all float64 arrays the caller owns, see :func:`new_state`):
 
 Numerics, and why:
 
-* **Symmetric update.** P is updated as a symmetric rank-1 correction computed on the upper triangle
-  and mirrored, so P is symmetric to the last bit. The textbook form ``P - P phi phi' P / (...)``
+* **Symmetric update.** P is updated as a symmetric rank-1 correction ``P[i, j] -= c (g_i g_j)``
+  over the whole matrix: ``g_i g_j`` and ``g_j g_i`` are the same IEEE product, so a symmetric P
+  stays symmetric to the last bit without mirroring, and each row is one contiguous pass the
+  compiler vectorises (no ``fastmath``: no reassociation, the same bits in block and step mode;
+  ``g = P phi`` is summed column by column for the same reason). The textbook form ``P - P phi phi' P / (...)``
   evaluated as matrix products accumulates an antisymmetric rounding error that forgetting
   (division by lambda) amplifies every sample: it diverges after ~1e4-1e5 samples at lambda = 0.999.
   In exact arithmetic the update equals the Joseph form
@@ -53,7 +56,9 @@ Numerics, and why:
   standard deviation of Gaussian noise; plain mean over the first ``warmup`` samples). An error
   beyond ``outlier_k`` sigma_hat is an outlier (counted): ``outlier="skip"`` ignores the sample,
   ``outlier="huber"`` (default) weights it by ``q = outlier_k sigma_hat / |e|``, the Huber
-  M-estimator as a weighted least-squares sample, so its influence on theta and P is bounded. The
+  M-estimator as a weighted least-squares sample, so its influence on theta and P is bounded; an
+  error beyond ``reject_k`` sigma_hat (default 50, a gross error: a sensor spike, not the plant) is
+  skipped in Huber mode too. The
   scale takes in winsorised errors, so a lasting change of the plant (not a spike) raises sigma_hat
   by a few per cent per sample until its errors are accepted again.
 
@@ -61,7 +66,13 @@ Status of the last sample, ``st[ST_STATUS]``: ``UPDATED``, ``NONFINITE``, ``OUTL
 ``OUTLIER_WEIGHTED`` (updated with Huber weight) or ``FROZEN`` (little or no excitation: P
 frozen, theta corrected; or not used at all when phi = 0). ``st[ST_CLEAN]`` is
 the output value the estimator believes: y, the prediction for a skipped sample, or the Huber-clipped
-``y_hat + q e``; the OIIR puts it into its output history in place of a rejected measurement.
+``y_hat + q e``; the OIIR puts it into its output history in place of a skipped or non-finite
+measurement (a Huber-weighted one is kept: it is most likely the plant, see hilbench.online.oiir).
+
+Speed: :func:`_core` is the sample; it takes the settings and scalar state as arguments and returns
+what changed, so :func:`rls_block` reads ``cfg`` once per block and keeps counters in locals, and
+:func:`rls_step` reads and writes ``st`` around one call. ``error_model="numpy"`` (no Python
+division checks).
 """
 
 from __future__ import annotations
@@ -94,7 +105,8 @@ C_WARMUP = 8  # samples averaged before outliers are judged
 C_SCALE_MIN = 9  # floor of the scale estimate, output units
 C_XI_FORGET = 10  # forgetting only when phi' P phi exceeds this (informative samples)
 C_MU = 11  # directional forgetting: fraction of the information along phi forgotten per sample
-N_CFG = 12
+C_REJECT_K = 12  # huber: an error beyond this many robust standard deviations is skipped (gross error)
+N_CFG = 13
 
 # -- st indices --------------------------------------------------------------------------------
 ST_SAMPLES = 0
@@ -123,63 +135,58 @@ FORGETTING = {"exponential": 0.0, "directional": 1.0}
 OUTLIER = {"off": 0.0, "skip": 1.0, "huber": 2.0}
 
 
-@njit(cache=True, inline="always")
-def _finish(st: np.ndarray, status: float, clean: float, counter: int, scale: float, warm: float) -> None:
-    """The state writes of a step, gathered at its end: stores to ``st`` between the loops over
-    P would make the compiler reload every array after them (it cannot rule out aliasing)."""
-    st[ST_SAMPLES] += 1.0
-    if counter >= 0:
-        st[counter] += 1.0
-    st[ST_STATUS] = status
-    st[ST_CLEAN] = clean
-    st[ST_SCALE] = scale
-    st[ST_WARM] = warm
+# -- what a sample did, as bits of the ``flags`` the core returns --------------------------------
+_F_UPDATED = 1  # theta corrected
+_F_NONFINITE = 2
+_F_OUTLIER = 4
+_F_FROZEN = 8
+_F_CAPPED = 16
+_F_RESET = 32
 
 
-@njit(cache=True, inline="always")
-def rls_step(
-    phi: np.ndarray, y: float, theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray
-) -> float:
-    """One RLS sample: returns the a-priori prediction theta' phi, then updates the state in place."""
+@njit(cache=True, inline="always", error_model="numpy")
+def _core(
+    phi: np.ndarray, y: float, theta: np.ndarray, P: np.ndarray, g: np.ndarray,
+    lam: float, inv_lam: float, mu: float, directional: bool, mode: float, k_out: float, k_reject: float,
+    alpha: float,
+    warmup: float, scale_min: float, xi_min: float, xi_forget: float, trace_max: float, delta: float,
+    scale: float, warm: float,
+) -> tuple[float, float, float, float, float, int]:
+    """One RLS sample on theta, P and g; settings and the scalar state come in as locals, and what
+    the sample did goes out as values: ``(y_hat, status, clean, scale, warm, flags)``.
+
+    Nothing here writes ``st`` or reads ``cfg``: :func:`rls_step` does that around one call,
+    :func:`rls_block` once per block (a store to ``st`` between the loops over P would make the
+    compiler reload every array after it: it cannot rule out aliasing). Both call this same code,
+    so block and step mode give the same bits.
+    """
     n = theta.shape[0]
-    # settings and scalar state into locals first (see _finish)
-    lam = cfg[C_LAMBDA]
-    mu = cfg[C_MU]
-    directional = cfg[C_FORGET] == 1.0
-    mode = cfg[C_OUTLIER]
-    k_out = cfg[C_OUTLIER_K]
-    alpha = cfg[C_SCALE_ALPHA]
-    warmup = cfg[C_WARMUP]
-    scale_min = cfg[C_SCALE_MIN]
-    xi_min = cfg[C_XI_MIN]
-    xi_forget = cfg[C_XI_FORGET]
-    trace_max = cfg[C_TRACE_MAX]
-    delta = cfg[C_DELTA]
-    scale = st[ST_SCALE]
-    warm = st[ST_WARM]
-
     y_hat = 0.0
     for i in range(n):
         y_hat += theta[i] * phi[i]
     # A NaN/inf anywhere in phi makes y_hat non-finite (0 * inf is NaN too): one test covers both.
     if not (math.isfinite(y_hat) and math.isfinite(y)):
-        _finish(st, NONFINITE, y_hat, ST_NONFINITE, scale, warm)
-        return y_hat
+        return y_hat, NONFINITE, y_hat, scale, warm, _F_NONFINITE
     e = y - y_hat
+    # g = P phi by columns (P is symmetric to the bit, so column j is row j): the inner loop runs
+    # over contiguous memory with independent sums, which vectorises without reassociation, and
+    # each g[i] is summed over j in order, as a row-by-row dot product would sum it.
+    p0 = phi[0]
+    for i in range(n):
+        g[i] = P[0, i] * p0
+    for j in range(1, n):
+        pj = phi[j]
+        for i in range(n):
+            g[i] += P[j, i] * pj
     xi = 0.0
     for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += P[i, j] * phi[j]
-        g[i] = acc
-        xi += phi[i] * acc
+        xi += phi[i] * g[i]
     if not math.isfinite(xi):  # finite but huge regressor: its square overflows
-        _finish(st, NONFINITE, y_hat, ST_NONFINITE, scale, warm)
-        return y_hat
+        return y_hat, NONFINITE, y_hat, scale, warm, _F_NONFINITE
 
     # -- robust scale and outlier weight q -------------------------------------------------------
     q = 1.0
-    outlier = False
+    outlier = 0
     if mode != 0.0:
         ae = abs(e)
         if warm < warmup:
@@ -188,20 +195,17 @@ def rls_step(
         else:
             limit = k_out * scale
             if ae > limit:
-                outlier = True
-                q = 0.0 if mode == 1.0 else limit / ae
+                outlier = _F_OUTLIER
+                # skip mode, or a gross error in Huber mode (a sensor spike, not the plant): skipped
+                q = 0.0 if (mode == 1.0 or ae > k_reject * scale) else limit / ae
             # winsorised: a spike moves the scale by at most (k - 1) alpha of itself
             scale += alpha * (_SIGMA_PER_MAD * min(ae, limit) - scale)
         scale = max(scale, scale_min)
         if q == 0.0:
-            _finish(st, OUTLIER_SKIPPED, y_hat, ST_OUTLIERS, scale, warm)
-            return y_hat
-    status = UPDATED if q == 1.0 else OUTLIER_WEIGHTED
-    counter = ST_OUTLIERS if outlier else -1
+            return y_hat, OUTLIER_SKIPPED, y_hat, scale, warm, _F_OUTLIER
     if xi <= xi_min:
         # phi = 0 (or P singular along it): there is nothing to learn from this sample
-        _finish(st, FROZEN, y, ST_FROZEN, scale, warm)
-        return y_hat
+        return y_hat, FROZEN, y, scale, warm, _F_FROZEN
     if xi <= xi_forget:
         # Little excitation (phi small against what is already known): theta is still corrected
         # with the current P, but P is frozen. Forgetting along phi would replace good information
@@ -210,55 +214,80 @@ def rls_step(
         k_e = q * e / (1.0 + q * xi)
         for i in range(n):
             theta[i] += g[i] * k_e
-        st[ST_UPDATES] += 1.0
-        if outlier:
-            st[ST_OUTLIERS] += 1.0
-        _finish(st, FROZEN if q == 1.0 else OUTLIER_WEIGHTED, y_hat + q * e, ST_FROZEN, scale, warm)
-        return y_hat
+        status = FROZEN if q == 1.0 else OUTLIER_WEIGHTED
+        return y_hat, status, y_hat + q * e, scale, warm, _F_UPDATED | _F_FROZEN | outlier
 
     # -- parameter update: theta += q e P+ phi, with P+ phi = g / den in both forgetting kinds ------
     den = (1.0 - mu + q * xi) if directional else (lam + q * xi)  # > 0: mu < 1, lam > 0
-    k_e = q * e / den
+    inv_den = 1.0 / den
+    k_e = (q * e) * inv_den
     for i in range(n):
         theta[i] += g[i] * k_e
 
-    # -- covariance: symmetric rank-1 correction on the upper triangle, mirrored -----------------
+    # -- covariance: symmetric rank-1 correction ------------------------------------------------
+    # P[i, j] - c (g_i g_j): g_i g_j and g_j g_i are the same IEEE product, so a symmetric P stays
+    # symmetric to the bit without mirroring, and every row is one contiguous vectorisable pass.
     if directional:
-        c = (q - mu / xi) / den
-        post = 1.0
+        c = (q - mu / xi) * inv_den
+        for i in range(n):
+            gi = g[i]
+            for j in range(n):
+                P[i, j] -= c * (gi * g[j])
     else:
-        c = q / den
-        post = 1.0 / lam
+        c = q * inv_den
+        for i in range(n):
+            gi = g[i]
+            for j in range(n):
+                P[i, j] = (P[i, j] - c * (gi * g[j])) * inv_lam
     trace = 0.0
     bad = False
     for i in range(n):
-        gi = c * g[i]
-        for j in range(i, n):
-            v = (P[i, j] - gi * g[j]) * post
-            P[i, j] = v
-            P[j, i] = v
         d = P[i, i]
         trace += d
         if not d > 0.0:  # also catches NaN
             bad = True
+    flags = _F_UPDATED | outlier
     if bad or not math.isfinite(trace):
         for i in range(n):
             for j in range(n):
                 P[i, j] = 0.0
             P[i, i] = delta
-        st[ST_RESETS] += 1.0
+        flags |= _F_RESET
     elif trace > trace_max:
         s = trace_max / trace
         for i in range(n):
             for j in range(n):
                 P[i, j] *= s
-        st[ST_CAPPED] += 1.0
-    st[ST_UPDATES] += 1.0
-    _finish(st, status, y_hat + q * e, counter, scale, warm)
+        flags |= _F_CAPPED
+    status = UPDATED if q == 1.0 else OUTLIER_WEIGHTED
+    return y_hat, status, y_hat + q * e, scale, warm, flags
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def rls_step(
+    phi: np.ndarray, y: float, theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray
+) -> float:
+    """One RLS sample: returns the a-priori prediction theta' phi, then updates the state in place."""
+    y_hat, status, clean, scale, warm, flags = _core(
+        phi, y, theta, P, g, cfg[C_LAMBDA], 1.0 / cfg[C_LAMBDA], cfg[C_MU], cfg[C_FORGET] == 1.0, cfg[C_OUTLIER],
+        cfg[C_OUTLIER_K], cfg[C_REJECT_K], cfg[C_SCALE_ALPHA], cfg[C_WARMUP], cfg[C_SCALE_MIN], cfg[C_XI_MIN], cfg[C_XI_FORGET],
+        cfg[C_TRACE_MAX], cfg[C_DELTA], st[ST_SCALE], st[ST_WARM],
+    )
+    st[ST_SAMPLES] += 1.0
+    st[ST_UPDATES] += flags & _F_UPDATED
+    st[ST_NONFINITE] += (flags & _F_NONFINITE) >> 1
+    st[ST_OUTLIERS] += (flags & _F_OUTLIER) >> 2
+    st[ST_FROZEN] += (flags & _F_FROZEN) >> 3
+    st[ST_CAPPED] += (flags & _F_CAPPED) >> 4
+    st[ST_RESETS] += (flags & _F_RESET) >> 5
+    st[ST_STATUS] = status
+    st[ST_CLEAN] = clean
+    st[ST_SCALE] = scale
+    st[ST_WARM] = warm
     return y_hat
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rls_block(
     Phi: np.ndarray,
     Y: np.ndarray,
@@ -275,15 +304,67 @@ def rls_block(
 
     ``y_hat`` (m,) receives the a-priori predictions; ``theta_hist`` (rows, n) receives theta after
     every ``decimate``-th sample of the block (samples decimate-1, 2 decimate-1, ...) until full;
-    ``decimate <= 0`` records nothing.
+    ``decimate <= 0`` records nothing. Settings are read and the counters, scale and status kept
+    in locals for the whole block, and written to ``st`` once at its end: the same values as
+    ``m`` calls of :func:`rls_step` (counts are exact in float64).
     """
+    lam = cfg[C_LAMBDA]
+    inv_lam = 1.0 / lam
+    mu = cfg[C_MU]
+    directional = cfg[C_FORGET] == 1.0
+    mode = cfg[C_OUTLIER]
+    k_out = cfg[C_OUTLIER_K]
+    k_reject = cfg[C_REJECT_K]
+    alpha = cfg[C_SCALE_ALPHA]
+    warmup = cfg[C_WARMUP]
+    scale_min = cfg[C_SCALE_MIN]
+    xi_min = cfg[C_XI_MIN]
+    xi_forget = cfg[C_XI_FORGET]
+    trace_max = cfg[C_TRACE_MAX]
+    delta = cfg[C_DELTA]
+    scale = st[ST_SCALE]
+    warm = st[ST_WARM]
+    status = st[ST_STATUS]
+    clean = st[ST_CLEAN]
+    n_updated = 0
+    n_nonfinite = 0
+    n_outlier = 0
+    n_frozen = 0
+    n_capped = 0
+    n_reset = 0
+    m = Y.shape[0]
     rows = 0
-    for k in range(Y.shape[0]):
-        y_hat[k] = rls_step(Phi[k], Y[k], theta, P, g, cfg, st)
-        if decimate > 0 and (k + 1) % decimate == 0 and rows < theta_hist.shape[0]:
-            for i in range(theta.shape[0]):
-                theta_hist[rows, i] = theta[i]
-            rows += 1
+    max_rows = theta_hist.shape[0] if decimate > 0 else 0
+    countdown = decimate  # a counter, not (k + 1) % decimate: no integer division per sample
+    for k in range(m):
+        y_hat[k], status, clean, scale, warm, flags = _core(
+            Phi[k], Y[k], theta, P, g, lam, inv_lam, mu, directional, mode, k_out, k_reject, alpha, warmup, scale_min,
+            xi_min, xi_forget, trace_max, delta, scale, warm,
+        )
+        n_updated += flags & _F_UPDATED
+        n_nonfinite += (flags & _F_NONFINITE) >> 1
+        n_outlier += (flags & _F_OUTLIER) >> 2
+        n_frozen += (flags & _F_FROZEN) >> 3
+        n_capped += (flags & _F_CAPPED) >> 4
+        n_reset += (flags & _F_RESET) >> 5
+        if rows < max_rows:
+            countdown -= 1
+            if countdown == 0:
+                countdown = decimate
+                for i in range(theta.shape[0]):
+                    theta_hist[rows, i] = theta[i]
+                rows += 1
+    st[ST_SAMPLES] += m
+    st[ST_UPDATES] += n_updated
+    st[ST_NONFINITE] += n_nonfinite
+    st[ST_OUTLIERS] += n_outlier
+    st[ST_FROZEN] += n_frozen
+    st[ST_CAPPED] += n_capped
+    st[ST_RESETS] += n_reset
+    st[ST_STATUS] = status
+    st[ST_CLEAN] = clean
+    st[ST_SCALE] = scale
+    st[ST_WARM] = warm
     return rows
 
 
@@ -297,6 +378,7 @@ def make_config(
     xi_min: float = 0.0,
     outlier: str = "huber",
     outlier_k: float = 5.0,
+    reject_k: float = 50.0,
     scale_memory: float = 500.0,
     warmup: int | None = None,
     scale_min: float = 1.0e-12,
@@ -313,6 +395,8 @@ def make_config(
         raise ValueError(f"outlier={outlier!r}: expected one of {', '.join(OUTLIER)}")
     if not outlier_k > 1.0:
         raise ValueError(f"outlier_k={outlier_k}: expected > 1 (robust standard deviations)")
+    if not reject_k >= outlier_k:
+        raise ValueError(f"reject_k={reject_k}: expected >= outlier_k={outlier_k}")
     if not scale_memory >= 1.0:
         raise ValueError(f"scale_memory={scale_memory}: expected >= 1 sample")
     cfg = np.zeros(N_CFG)
@@ -323,6 +407,7 @@ def make_config(
     cfg[C_XI_MIN] = xi_min
     cfg[C_OUTLIER] = OUTLIER[outlier]
     cfg[C_OUTLIER_K] = outlier_k
+    cfg[C_REJECT_K] = reject_k
     cfg[C_SCALE_ALPHA] = 1.0 / scale_memory
     cfg[C_WARMUP] = float(10 * n_params if warmup is None else warmup)
     cfg[C_SCALE_MIN] = scale_min
@@ -375,6 +460,7 @@ class RLS:
         on less informative samples P is frozen and theta still corrected (counted as ``frozen``).
     outlier : ``"huber"`` (default), ``"skip"`` or ``"off"``.
     outlier_k : outlier threshold in robust standard deviations of the a-priori error.
+    reject_k : ``"huber"``: errors beyond this many robust standard deviations are skipped (>= outlier_k).
     scale_memory : memory of the running scale estimate, samples.
     warmup : samples averaged into the scale before outliers are judged (default 10 n).
     scale_min : floor of the scale estimate, output units (noise-free data).
@@ -383,13 +469,15 @@ class RLS:
 
     def __init__(self, n_params: int, *, lam: float = 0.999, delta: float = 1.0e3, forgetting: str = "directional",
                  trace_max: float | None = None, xi_min: float = 0.0, outlier: str = "huber",
-                 outlier_k: float = 5.0, scale_memory: float = 500.0, warmup: int | None = None,
+                 outlier_k: float = 5.0, reject_k: float = 50.0, scale_memory: float = 500.0,
+                 warmup: int | None = None,
                  scale_min: float = 1.0e-12, forget_threshold: float = 0.1, theta0: np.ndarray | None = None):
         if n_params < 1:
             raise ValueError(f"n_params={n_params}: expected >= 1")
         self.n = int(n_params)
         self.cfg = make_config(self.n, lam=lam, delta=delta, forgetting=forgetting, trace_max=trace_max,
-                               xi_min=xi_min, outlier=outlier, outlier_k=outlier_k, scale_memory=scale_memory,
+                               xi_min=xi_min, outlier=outlier, outlier_k=outlier_k, reject_k=reject_k,
+                               scale_memory=scale_memory,
                                warmup=warmup, scale_min=scale_min, forget_threshold=forget_threshold)
         self._theta0 = theta0
         self.reset()

@@ -175,6 +175,32 @@ def test_bad_samples_do_not_poison_the_identifier(offline_model):
     assert re_n2_pct(y[good], res_naive["y_m"][good]) > 3.0 * re_n2_pct(y[good], res["y_m"][good])
 
 
+def test_output_history_keeps_weighted_samples_and_drops_gross_ones():
+    """A Huber-weighted measurement (moderate error: most likely the plant) enters the output lags
+    as measured; a gross error (a sensor spike, skipped) enters as the prediction."""
+    from hilbench.online import rls as R
+
+    rng = np.random.default_rng(9)
+    u = rng.standard_normal(3000)
+    y = sps.lfilter([0.0, 0.5, 0.2], [1.0, -0.6, 0.1], u) + 0.01 * rng.standard_normal(3000)
+    base = OIIR(identity_front_end(), M=3, N=5, lam=0.999)
+    base.run(u[:2999], y[:2999])
+    scale = float(base.st[R.ST_SCALE])
+    m1 = base.M + 1
+    for jump, status, expect_measured in ((20.0, R.OUTLIER_WEIGHTED, True), (80.0, R.OUTLIER_SKIPPED, False)):
+        o = OIIR(identity_front_end(), M=3, N=5, lam=0.999)
+        for name in ("theta", "P", "st", "phi", "ops", "xs"):
+            getattr(o, name)[:] = getattr(base, name)
+        probe = OIIR(identity_front_end(), M=3, N=5, lam=0.999)
+        for name in ("theta", "P", "st", "phi", "ops", "xs"):
+            getattr(probe, name)[:] = getattr(base, name)
+        pred = probe.step(u[2999], y[2999])
+        y_bad = pred + jump * scale
+        o.step(u[2999], y_bad)
+        assert o.st[R.ST_STATUS] == status
+        assert o.phi[m1] == (y_bad if expect_measured else pred)
+
+
 def test_block_mode_equals_step_mode(offline_model):
     n = 1500
     t = np.arange(n) / FS

@@ -184,3 +184,39 @@ def test_settings_are_validated():
         RLS(3, outlier="maybe")
     with pytest.raises(ValueError, match="shape"):
         RLS(3).step(np.zeros(4), 1.0)
+
+
+def _clone(rls: RLS, **options) -> RLS:
+    c = RLS(rls.n, **options)
+    c.theta[:], c.P[:], c.st[:] = rls.theta, rls.P, rls.st
+    return c
+
+
+def test_huber_weights_moderate_errors_and_skips_gross_ones():
+    """Between outlier_k and reject_k robust standard deviations a sample is Huber-weighted (used,
+    clipped); beyond reject_k it is a gross error (a spike) and skipped."""
+    from hilbench.online import rls as R
+
+    _, phi, y = arx_data(8, 5000)
+    rls = RLS(8, lam=0.999)  # outlier_k = 5, reject_k = 50
+    rls.run(phi[:4000], y[:4000])
+    k, scale = 4000, rls.scale
+    assert 0.005 < scale < 0.02  # the noise, 0.01
+    pred = float(rls.theta @ phi[k])
+    moderate = _clone(rls, lam=0.999)
+    moderate.step(phi[k], pred + 20.0 * scale)
+    assert moderate.status == R.OUTLIER_WEIGHTED
+    assert moderate.st[R.ST_CLEAN] == pytest.approx(pred + 5.0 * scale, rel=1e-9)  # clipped at 5 sigma
+    assert not np.array_equal(moderate.theta, rls.theta)
+    gross = _clone(rls, lam=0.999)
+    gross.step(phi[k], pred + 80.0 * scale)
+    assert gross.status == R.OUTLIER_SKIPPED
+    np.testing.assert_array_equal(gross.theta, rls.theta)
+    np.testing.assert_array_equal(gross.P, rls.P)
+    assert gross.st[R.ST_CLEAN] == pred
+    assert gross.counters()["outliers"] == rls.counters()["outliers"] + 1
+    plain_huber = _clone(rls, lam=0.999, reject_k=1e9)  # no gross-error threshold: weighted too
+    plain_huber.step(phi[k], pred + 80.0 * scale)
+    assert plain_huber.status == R.OUTLIER_WEIGHTED
+    with pytest.raises(ValueError, match="reject_k"):
+        RLS(3, outlier_k=5.0, reject_k=4.0)

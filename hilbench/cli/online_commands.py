@@ -1,0 +1,419 @@
+"""hilbench online: paper 000's online identifier (FPMPI + OIIR weights by RLS) against the offline
+Hammerstein model, on a recording or a rig.
+
+What is compared, per evaluated run (000 Table 4, metrics of eq. 18 in percent):
+
+* ``online``: the OIIR output y_m(k) = sum p_i u_r(k-i) + sum q_j y(k-j), predicted *before* y(k)
+  is used, with the weights of sample k-1 (000 eq. 11): a one-step-ahead prediction that uses the
+  measured outputs up to k-1;
+* ``offline``: the Hammerstein model of 000 sec. 4.1 (FPMPI + second-order dynamics + delay, spec
+  ``fpmpi+dynamics+delay``), identified once on the training rows, then held, simulated free-run
+  from the input alone;
+* ``persistence``: the naive one-step-ahead predictor y(k-1), which uses the measured output and
+  nothing else. The online error means something only against this: an identifier that merely
+  copied its output lags would score it.
+
+The identifier starts afresh on each evaluated run (zero weights, P = delta I, operators at rest)
+and sees every sample of the run in recorded order; block mode runs the same numba kernel as the
+step mode of the runner's loop, bit for bit (tests/online). Errors leave out the first ``--settle``
+seconds of each run (the identifier's start-up transient; 000 compares at steady state) and every
+training row.
+
+On a rig (``hilbench online RIG``) the plan, or ``--excitation``, is swept through the runner into a
+recording first (``--record``), which is then replayed through the identifier: the same samples in
+the same order as stepping the identifier in the loop, without touching the runner.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+import typer
+
+from hilbench.cli.app import RunProgress, app, default_output, print_json, user_errors
+from hilbench.errors import UserError
+
+#: what the three predictions are, in the JSON document and the report
+COMPARISON = {
+    "online": "one-step-ahead prediction of the OIIR (000 eq. 11): the weights of sample k-1 and the measured "
+              "outputs y(k-1..k-N); identifier started afresh on each run",
+    "offline": "free-run simulation of the offline Hammerstein model (FPMPI + dynamics + delay, 000 sec. 4.1), "
+               "identified once on the training rows, then held",
+    "persistence": "naive one-step-ahead baseline y(k-1): what the measured output lags give for free",
+}
+PLOT_RUNS = 4
+PLOT_POINTS = 20_000
+
+
+@dataclass
+class RunComparison:
+    """One evaluated run: the three predictions, the rows scored, the weights over time."""
+
+    key: str
+    name: str
+    sample_rate_hz: float
+    input: np.ndarray
+    output: np.ndarray
+    online: np.ndarray
+    offline: np.ndarray
+    persistence: np.ndarray
+    u_r: np.ndarray
+    weights: np.ndarray  # (n, K): theta after every sample
+    weight_names: list[str]
+    rows: np.ndarray  # bool: the rows scored
+    metrics: dict[str, dict[str, float]] = field(default_factory=dict)
+    counters: dict[str, Any] = field(default_factory=dict)
+    static_gain: float = float("nan")
+
+    def to_json(self) -> dict[str, Any]:
+        from hilbench.identify.fitting import finite_json
+
+        idx = np.flatnonzero(self.rows)
+        on, off, per = (self.metrics[k]["re_n2_pct"] for k in ("online", "offline", "persistence"))
+        return finite_json({
+            "run": self.key,
+            "samples": int(self.output.size),
+            "evaluated_samples": int(idx.size),
+            "evaluated_from_s": float(idx[0] / self.sample_rate_hz) if idx.size else None,
+            "online": self.metrics["online"],
+            "offline": self.metrics["offline"],
+            "persistence": self.metrics["persistence"],
+            "re_n2_ratio_offline_over_online": off / on if on > 0 else None,
+            "re_n2_ratio_persistence_over_online": per / on if on > 0 else None,
+            "weights_final": {n: float(w) for n, w in zip(self.weight_names, self.weights[-1])}
+            if len(self.weights) else {},
+            "static_gain_final": self.static_gain,
+            "identifier": self.counters,
+        })
+
+
+# -- pieces -------------------------------------------------------------------------------------
+
+
+def parse_orders(text: str) -> tuple[int, int]:
+    """``"M,N"`` -> (M, N), the OIIR numerator and denominator orders (000: 3,5)."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        m, n = (int(p) for p in parts)
+    except ValueError:
+        raise UserError(f"expected two integers M,N (e.g. 3,5), got {text!r}", where="--orders") from None
+    if not (0 <= m <= 50 and 0 <= n <= 50):
+        raise UserError(f"orders {m},{n}: expected 0..50 each", where="--orders")
+    return m, n
+
+
+def _pick(m: dict[str, float]) -> dict[str, float]:
+    keys = ("re_n2_pct", "re_ninf_pct", "rmse", "max_abs_error", "n")
+    return {k: m[k] for k in keys}
+
+
+def record_on_rig(config: str, excitation: list[str], record: Path | None, realtime: bool | None,
+                  quiet: bool) -> tuple[Path, str]:
+    """Sweep the rig's plan (or ``excitation``) through the runner into a recording; returns it."""
+    from hilbench.excitation.plan import expand_runs, plan_from_compact
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.sweep import run_plan
+
+    cfg = load_rig(config)
+    if excitation:
+        planned = plan_from_compact(excitation)
+    elif cfg.plan:
+        planned = expand_runs(cfg.plan, file=cfg.path)
+    else:
+        raise UserError("the rig config has no [[plan.runs]]", where=cfg.path,
+                        hint="give --excitation runs, e.g. a training run and the drives to identify online")
+    out = record or default_output(cfg.name)
+    with RunProgress(not quiet) as progress:
+        result = run_plan(Rig(cfg), planned, out, experiment="online", realtime=realtime, progress=progress)
+    if result.status != "complete":
+        raise UserError(f"the sweep ended {result.status}; nothing identified", where=str(out))
+    return out, cfg.name
+
+
+def compare(
+    runs: list[Any], offline_model: Any, front_end: Any, *, M: int = 3, N: int = 5, lam: float = 1.0,
+    delta: float = 1.0e5, forgetting: str = "directional", settle_s: float = 0.5,
+) -> list[RunComparison]:
+    """Online vs offline vs persistence on every run with validation rows (``runs``: FitRun with
+    masks set). The offline model is simulated free-run over all runs, memory chained as recorded."""
+    from hilbench.identify.metrics import metrics
+    from hilbench.online.oiir import OIIR, persistence
+
+    active = [r for r in runs if len(r.data)]
+    offline_all = offline_model.simulate_runs([r.data for r in active])
+    out = []
+    for r, y_off in zip(active, offline_all):
+        if not r.validation.any():
+            continue
+        u = np.asarray(r.data.input, dtype=np.float64)
+        y = np.asarray(r.data.output, dtype=np.float64)
+        fs = float(r.data.sample_rate_hz)
+        oiir = OIIR(front_end, M, N, lam=lam, delta=delta, forgetting=forgetting)
+        res = oiir.run(u, y, decimate=1)
+        y_per = persistence(y)
+        rows = r.validation & (np.arange(y.size) >= round(settle_s * fs))
+        rows &= np.isfinite(y) & np.isfinite(res["y_m"]) & np.isfinite(y_off) & np.isfinite(y_per)
+        c = RunComparison(r.key, r.data.name, fs, u, y, res["y_m"], np.asarray(y_off, float), y_per, res["u_r"],
+                          res["weights"], oiir.weight_names, rows)
+        if not rows.any():
+            raise UserError(f"run {r.key}: no row left to score after the first {settle_s:g} s and the training rows",
+                            hint="lower --settle or give the run fewer training rows")
+        c.metrics = {name: _pick(metrics(y[rows], pred[rows]))
+                     for name, pred in (("online", c.online), ("offline", c.offline), ("persistence", y_per))}
+        c.counters = oiir.counters()
+        c.static_gain = oiir.static_gain()
+        out.append(c)
+    return out
+
+
+def write_online(path: Path, comparisons: list[RunComparison], settings: dict[str, Any], output_unit: str,
+                 input_unit: str) -> list[str]:
+    """One new run per evaluated run: measured input and output, online and offline outputs, the
+    FPMPI output u_r and the weights after every sample (``weight_p0``.., ``weight_q1``..)."""
+    from hilbench.recording.hdf5 import RecordingWriter
+
+    writer = RecordingWriter(path)
+    names = []
+    for c in comparisons:
+        n = c.output.size
+        data: dict[str, np.ndarray] = {
+            "time": np.arange(n) / c.sample_rate_hz, "input": c.input, "output": c.output,
+            "online_output": c.online, "offline_output": c.offline, "u_r": c.u_r,
+        }
+        units = {"time": "s", "input": input_unit, "output": output_unit, "online_output": output_unit,
+                 "offline_output": output_unit, "u_r": output_unit}
+        desc = {"online_output": "OIIR one-step-ahead prediction y_m(k) (000 eq. 11), a priori",
+                "offline_output": "offline Hammerstein model, free-run simulation",
+                "u_r": "FPMPI front-end output (000 eq. 4)"}
+        for j, name in enumerate(c.weight_names):
+            data[f"weight_{name}"] = c.weights[:, j]
+            units[f"weight_{name}"] = ""
+            desc[f"weight_{name}"] = f"OIIR weight {name} after sample k (000 eq. 9)"
+        scored = {k: c.metrics[k]["re_n2_pct"] for k in c.metrics}
+        names.append(writer.write_run(
+            f"online-{c.name.split('-', 1)[1] if c.name[:4].isdigit() and '-' in c.name else c.name}", data, units, descriptions=desc, experiment="online",
+            excitation={"online_identification_of": c.key, **settings}, sample_rate_hz=c.sample_rate_hz,
+            extra_attrs={"source_run": c.key, "re_n2_pct": json.dumps(scored),
+                         "scored_rows": json.dumps([int(i) for i in _spans(c.rows)])},
+        ))
+    return names
+
+
+def _spans(mask: np.ndarray) -> list[int]:
+    """Start/stop pairs of the True stretches of ``mask`` (flattened)."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return [v for pair in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)) for v in pair]
+
+
+def plot_online(comparisons: list[RunComparison], png: Path, output_unit: str, input_unit: str) -> Path:
+    """Per run (up to 4): measured, offline and online outputs over time; loops over the scored
+    rows; the weights over time (000 Fig. 10c-d)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shown = comparisons[:PLOT_RUNS]
+    fig, axes = plt.subplots(len(shown), 3, figsize=(15, 3.4 * len(shown)), squeeze=False)
+    for row, c in zip(axes, shown):
+        t = np.arange(c.output.size) / c.sample_rate_hz
+        step = max(1, c.output.size // PLOT_POINTS)
+        ax = row[0]
+        ax.plot(t[::step], c.output[::step], "k-", lw=1.2, label="measured")
+        ax.plot(t[::step], c.offline[::step], "b--", lw=1, label=f"offline ({c.metrics['offline']['re_n2_pct']:.3g} %)")
+        ax.plot(t[::step], c.online[::step], "r:", lw=1, label=f"online ({c.metrics['online']['re_n2_pct']:.3g} %)")
+        ax.set(xlabel="time (s)", ylabel=f"output ({output_unit})", title=c.key)
+        ax.legend(fontsize=7, loc="best")
+        ax = row[1]
+        idx = np.flatnonzero(c.rows)
+        idx = idx[:: max(1, idx.size // PLOT_POINTS)]
+        ax.plot(c.input[idx], c.output[idx], "k-", lw=0.8, label="measured")
+        ax.plot(c.input[idx], c.offline[idx], "b--", lw=0.8, label="offline")
+        ax.plot(c.input[idx], c.online[idx], "r:", lw=0.8, label="online")
+        ax.set(xlabel=f"input ({input_unit})", ylabel=f"output ({output_unit})", title="loops (scored rows)")
+        ax.legend(fontsize=7, loc="best")
+        ax = row[2]
+        for j, name in enumerate(c.weight_names):
+            ax.plot(t[::step], c.weights[::step, j], lw=1, label=name)
+        lim = np.nanpercentile(np.abs(c.weights[c.rows]), 99.5) if c.rows.any() else 1.0
+        if np.isfinite(lim) and lim > 0:
+            ax.set_ylim(-1.2 * lim, 1.2 * lim)
+        ax.set(xlabel="time (s)", ylabel="weight", title="OIIR weights (000 Fig. 10c-d)")
+        ax.legend(fontsize=7, ncol=2, loc="best")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=90)
+    plt.close(fig)
+    return png
+
+
+def report_lines(doc: dict[str, Any]) -> list[str]:
+    lines = [f"offline model: {doc['offline']['spec']} ({doc['offline']['source']}); {doc['split']}",
+             (f"online: OIIR M={doc['online']['M']}, N={doc['online']['N']}, lambda {doc['online']['lambda']:g}, "
+              f"delta {doc['online']['delta']:g}; errors from {doc['settle_s']:g} s into each run, "
+              "training rows left out"),
+             f"{'run':36s} {'re_N2 %':>30s}   {'re_Ninf %':>30s}",
+             f"{'':36s} {'online':>9s} {'offline':>9s} {'y(k-1)':>9s}   {'online':>9s} {'offline':>9s} {'y(k-1)':>9s}"]
+    for r in doc["runs"]:
+        a, b, c = r["online"], r["offline"], r["persistence"]
+        lines.append(f"{r['run'][:36]:36s} {a['re_n2_pct']:9.3g} {b['re_n2_pct']:9.3g} {c['re_n2_pct']:9.3g}   "
+                     f"{a['re_ninf_pct']:9.3g} {b['re_ninf_pct']:9.3g} {c['re_ninf_pct']:9.3g}")
+    lines.append("online and y(k-1) are one-step-ahead predictions from measured outputs; offline is a free-run "
+                 "simulation from the input alone: read online against y(k-1), not only against offline.")
+    return lines
+
+
+# -- the command --------------------------------------------------------------------------------
+
+
+@app.command("online")
+@user_errors
+def online(
+    data: list[str] = typer.Argument(..., metavar="DATA.h5...|RIG",
+                                     help="Recording(s) to replay, or a rig config (TOML path or built-in name) to sweep."),
+    train: list[str] = typer.Option(
+        [], "--train", metavar="RUN", help="Run that trains the offline model entirely (name, label or number; "
+        "FILE-STEM:RUN with several files). Repeatable. The other runs are identified online and compared.",
+    ),
+    train_fraction: float = typer.Option(
+        0.3, "--train-fraction", help="Without --train: the first part of every run that trains the offline model; "
+        "errors are scored on the rest.",
+    ),
+    orders: str = typer.Option("3,5", "--orders", metavar="M,N", help="OIIR numerator and denominator orders (000: 3,5)."),
+    forgetting: float = typer.Option(1.0, "--forgetting", help="Forgetting factor lambda, 0 < lambda <= 1 (000: 1)."),
+    forgetting_kind: str = typer.Option("directional", "--forgetting-kind",
+                                        help="directional (no wind-up) or exponential; moot at lambda = 1."),
+    delta: float = typer.Option(1.0e5, "--delta", help="Initial covariance P0 = delta I (000: 1e5)."),
+    model: Optional[Path] = typer.Option(
+        None, "--model", metavar="FIT.json", help="A fitted fpmpi model for the front end (e.g. from `hilbench fit "
+        "--model fpmpi`); default: fit fpmpi on the training rows. A model with dynamics is also held as the offline model.",
+    ),
+    settle: float = typer.Option(0.5, "--settle", help="Seconds at the start of each run left out of all errors "
+                                 "(the identifier's start-up transient)."),
+    global_starts: int = typer.Option(16, "--global-starts", help="Global starts of the fpmpi shape search."),
+    excitation: list[str] = typer.Option(
+        [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...", help="Rig mode: runs to sweep instead of the config's plan. Repeatable.",
+    ),
+    record: Optional[Path] = typer.Option(None, "--record", help="Rig mode: the recording of the sweep "
+                                          "(default recordings/RIG-STAMP.h5)."),
+    realtime: Optional[bool] = typer.Option(None, "--realtime/--no-realtime",
+                                            help="Rig mode: pace a simulated rig at its sample rate (default: the config's)."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", metavar="FILE.h5",
+                                          help="Write the online output and the weights as channels of a new run per run."),
+    plot_png: Optional[Path] = typer.Option(None, "--plot", metavar="PNG", help="Measured, offline and online outputs and "
+                                            "the weights over time, per run (up to 4)."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress on stderr."),
+) -> None:
+    """Identify online (paper 000: FPMPI front end + OIIR weights by RLS) and compare with the offline model.
+
+    Every run not used for training is fed sample by sample to a fresh identifier; its one-step-ahead
+    prediction, the held offline Hammerstein model's free-run output and the naive y(k-1) are scored
+    with re_n2_pct and re_ninf_pct (000 eq. 18, Table 4).
+    """
+    from hilbench.identify.dataset import as_dataset
+    from hilbench.identify.fitting import assign_roles
+    from hilbench.identify.metrics import metrics
+    from hilbench.models import Model
+    from hilbench.online.oiir import OFFLINE_SPEC, FPMPIFrontEnd, offline_hammerstein
+    from hilbench.online.rls import FORGETTING
+
+    def note(message: str) -> None:
+        if not quiet:
+            typer.echo(message, err=True)
+
+    M, N = parse_orders(orders)
+    if not 0.0 < forgetting <= 1.0:
+        raise UserError(f"lambda = {forgetting:g}: expected 0 < lambda <= 1", where="--forgetting")
+    if forgetting_kind not in FORGETTING:
+        raise UserError(f"{forgetting_kind!r}: expected one of {', '.join(FORGETTING)}", where="--forgetting-kind")
+    if not delta > 0.0:
+        raise UserError(f"delta = {delta:g}: expected > 0", where="--delta")
+    if settle < 0.0:
+        raise UserError(f"{settle:g} s: expected >= 0", where="--settle")
+    if global_starts < 0:
+        raise UserError(f"{global_starts}: expected >= 0", where="--global-starts")
+
+    rig_name = None
+    is_rig = len(data) == 1 and not data[0].lower().endswith((".h5", ".hdf5")) and not Path(data[0]).is_file()
+    is_rig = is_rig or (len(data) == 1 and data[0].lower().endswith(".toml"))
+    if is_rig:
+        recorded, rig_name = record_on_rig(data[0], excitation, record, realtime, quiet or as_json)
+        note(f"recorded {recorded}")
+        paths = [recorded]
+    else:
+        if excitation or record is not None:
+            raise UserError("--excitation and --record sweep a rig; DATA names recordings here",
+                            hint="give a rig config or built-in rig name instead of a recording")
+        paths = [Path(p) for p in data]
+    dataset = as_dataset(paths)
+    runs = dataset.fit_runs()
+    split = assign_roles(runs, train or None, None, train_fraction)
+    if not any(r.validation.any() for r in runs):
+        raise UserError(f"no run is left to identify online ({split})", where="--train")
+    active = [r for r in runs if len(r.data)]
+    masks = [r.train for r in active]
+    if not any(m.any() for m in masks):
+        raise UserError(f"the training set is empty ({split})", where="--train")
+
+    loaded = Model.load(model) if model is not None else None
+    if loaded is not None and loaded.base.name != "fpmpi":
+        raise UserError(f"the model's base is {loaded.base.name!r}; the front end needs an fpmpi model",
+                        where=str(model), hint="fit one with `hilbench fit DATA --model fpmpi -o fpmpi.json`")
+    if loaded is not None and loaded.effect("dynamics") is not None:
+        hammerstein, source = loaded, f"loaded from {model}, held"
+        front_model = loaded
+    else:
+        note(f"fitting the offline model {OFFLINE_SPEC} on the training rows ({split}) ...")
+        front_model, hammerstein = offline_hammerstein(
+            [r.data for r in active], masks, hysteresis=loaded, global_starts=global_starts,
+            progress=None if quiet else note)
+        source = ("fitted on the training rows, then held; FPMPI " +
+                  (f"from {model}" if loaded is not None else "fitted first (spec fpmpi), as 000 sec. 4.1"))
+    try:
+        front_end = FPMPIFrontEnd.from_model(front_model)
+    except ValueError as exc:
+        raise UserError(str(exc), where=str(model) if model is not None else "--model") from None
+    train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
+    train_metrics = _pick(metrics(np.concatenate([a for a, _ in train_y]), np.concatenate([b for _, b in train_y])))
+
+    comparisons = compare(runs, hammerstein, front_end, M=M, N=N, lam=forgetting, delta=delta,
+                          forgetting=forgetting_kind, settle_s=settle)
+    settings = {"M": M, "N": N, "lambda": forgetting, "delta": delta, "forgetting": forgetting_kind,
+                "outlier": "huber", "settle_s": settle}
+    doc: dict[str, Any] = {
+        "mode": "rig" if is_rig else "recording",
+        "files": [str(p) for p in paths],
+        "replay": "each evaluated run is fed to a fresh identifier sample by sample in recorded order "
+                  "(block mode: the same kernel as step mode)",
+        "split": split,
+        "settle_s": settle,
+        "offline": {"spec": hammerstein.spec, "source": source, "train": train_metrics,
+                    "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()}},
+        "front_end": {"operators": int(front_end.r.size), "exponents": front_end.exps.tolist(),
+                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0])},
+        "online": {**settings, "weights": comparisons[0].weight_names if comparisons else []},
+        "comparison": COMPARISON,
+        "runs": [c.to_json() for c in comparisons],
+    }
+    if rig_name is not None:
+        doc["rig"] = rig_name
+        doc["mode_note"] = ("rig: the plan was swept through the runner into the recording, then replayed through "
+                            "the identifier (the samples and their order are those of a step-mode loop)")
+    if output is not None:
+        doc["output"] = str(output)
+        doc["output_runs"] = write_online(output, comparisons, settings, dataset.output_unit, dataset.input_unit)
+        note(f"wrote {output}: runs {', '.join(doc['output_runs'])}")
+    if plot_png is not None:
+        doc["png"] = str(plot_online(comparisons, plot_png, dataset.output_unit, dataset.input_unit))
+        note(f"wrote {plot_png}")
+    if as_json:
+        print_json(doc)
+        return
+    for line in report_lines(doc):
+        typer.echo(line)

@@ -1,0 +1,73 @@
+"""``hilbench track``: track a reference on a rig with an inverse-model compensator."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from hilbench.cli.app import app, default_output, print_json, user_errors
+
+
+@app.command()
+@user_errors
+def track(
+    rig: str = typer.Argument(..., metavar="RIG", help="Rig config: a TOML path or a built-in rig name."),
+    model: Path = typer.Option(..., "--model", "-m", metavar="FIT.json", help="Fitted model (hilbench fit -o)."),
+    reference: str = typer.Option(
+        ..., "--reference", "-r", metavar="SPEC",
+        help="Reference in the OUTPUT unit (um): the compact form of `sweep --excitation`, e.g. "
+        "'sine:amplitude=50,offset=50,frequency_hz=1,phase_deg=-90,cycles=5', attenuated-triangle, multitone, "
+        "step; or FILE.h5:RUN (that run's output channel).",
+    ),
+    feedback: bool = typer.Option(False, "--feedback", help="Add PID feedback (output domain) around the inverse."),
+    kp: float = typer.Option(0.2, "--kp", help="PID proportional gain (1), with --feedback."),
+    ki: float = typer.Option(300.0, "--ki", help="PID integral gain (1/s), with --feedback."),
+    kd: float = typer.Option(0.0, "--kd", help="PID derivative gain (s, on the measurement), with --feedback."),
+    online: bool = typer.Option(False, "--online", help="Adapt the inverse online with the OIIR identifier "
+                                "(paper 000; needs an fpmpi model)."),
+    method: str = typer.Option("auto", "--method", help="Inverse: auto, pi, mpi, im (004 eq. 13), fpmpi, general."),
+    output: Optional[Path] = typer.Option(None, "--output", "-o", metavar="FILE.h5",
+                                          help="Recording (appended when it exists); default recordings/RIG-track-*.h5."),
+    plot_png: Optional[Path] = typer.Option(None, "--plot", metavar="PNG",
+                                            help="Figure: tracking, error, desired vs actual."),
+    label: str = typer.Option("track", "--label", help="Run label in the recording."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
+) -> None:
+    """Track a reference with the inverse of a fitted model, optionally with feedback or online
+    adaptation; record it and report the tracking error (um; *_pct in percent of the reference).
+
+    A configuration that cannot be stable (004 eq. 16 violated with no gain, PID gains that
+    destabilise the loop) is refused before anything moves.
+    """
+    from hilbench.online.inverse import PID
+    from hilbench.online.tracking import plot_tracking, track as run_track
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+
+    config = load_rig(rig)
+    out = output or default_output(f"{config.name}-track")
+    with Rig(config) as opened:
+        result = run_track(opened, model, reference, feedback=PID(kp, ki, kd) if feedback else None,
+                           online=True if online else None, output=out, label=label, method=method)
+        try:
+            opened.stop(True)
+        except Exception:  # noqa: BLE001  (the run is recorded; a failing stop is reported, not fatal)
+            typer.echo("warning: the rig did not stop cleanly", err=True)
+    if plot_png is not None:
+        plot_tracking(result, plot_png, title=config.name)
+    document = {"rig": config.name, **result.to_json()}
+    if plot_png is not None:
+        document["png"] = str(plot_png)
+    if as_json:
+        print_json(document)
+        return
+    m = result.metrics
+    typer.echo(f"{result.file} run {result.group}: {result.compensator['method']} inverse of {result.compensator['model']}"
+               + (" + PID" if feedback else "") + (" + online" if online else ""))
+    typer.echo("  " + ", ".join(f"{k} {v:.4g}" for k, v in m.items()))
+    for note in result.compensator.get("notes", []):
+        typer.echo(f"  note: {note}")
+    if plot_png is not None:
+        typer.echo(f"  figure: {plot_png}")

@@ -1,0 +1,433 @@
+"""The closed loop: reference -> compensator -> rig safety path -> plant -> feedback, at the fixed rate.
+
+On a simulated rig the whole loop is ONE fused numba loop per block (:func:`closed_loop_block`):
+per sample the compensator's command (:func:`hilbench.online.inverse.comp_step`), the rig's safety
+path with :func:`hilbench.rig.safety.command_path` semantics (NaN holds the last applied value,
+clamp to ``[min, max]``, slew limit ``max_rate / fs``), the plant
+(:func:`hilbench.sim.kernels.plant_step_flat`) and the commit of the applied command and the
+measurement (:func:`hilbench.online.inverse.comp_update`: model memory, PID, OIIR identifier). It
+is compiled with ``_nrt=False`` (it allocates nothing; see :mod:`hilbench.models.stepping`), so the
+inlined steps pay no reference counting. The loop runs in lock-step, so its ``lateness`` channel is 0;
+a real rig is driven sample by sample from Python (:meth:`Rig.apply` and :meth:`Rig.measure`) and
+the lateness of each sample against the fixed-rate schedule is recorded.
+
+The plant's sensor noise and temperature/load trajectories are drawn from the plant's own seeded
+streams in the order its block mode draws them, so a tracking run is reproducible.
+
+:func:`track` is the Python entry: it builds the compensator for the rig's limits, brings the rig
+and the compensator's memory to the same state (a full-range cycle, then a ramp to the first
+command), runs the loop, writes a recording (the rig's channels plus ``reference`` um, ``error``
+um = reference - output, ``command`` before the safety path, ``lateness`` s) and returns the metric
+keys of :mod:`hilbench.identify.metrics` (read at call time) of the output against the reference.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numba import njit
+
+from hilbench.errors import UserError
+from hilbench.online.inverse import PID, Compensator, comp_step, comp_update
+from hilbench.rig.safety import ramp
+from hilbench.sim import kernels as K
+
+__all__ = ["track", "TrackResult", "closed_loop_block", "loop_step", "reference_signal", "SimulatedLoop"]
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _safety(x: float, lo: float, hi: float, max_step: float, last: np.ndarray) -> float:
+    """:func:`hilbench.rig.safety.command_path` for one sample (the same arithmetic)."""
+    prev = last[0]
+    if x != x:
+        x = prev
+    c = min(max(x, lo), hi)
+    c = min(max(c, prev - max_step), prev + max_step)
+    last[0] = c
+    return c
+
+
+@njit(cache=True, _nrt=False)
+def loop_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
+              oa: Any, F: np.ndarray, L: np.ndarray, B: np.ndarray, pos: int, lims: np.ndarray,
+              last: np.ndarray, r: float, aux: np.ndarray, rec: np.ndarray) -> float:
+    """One sample of the closed loop on a simulated plant; returns the measured output (um).
+
+    ``lims`` = (lo, hi, max_step); ``last`` (1,) the last applied command (the rig's safety state);
+    ``B`` the plant's per-sample noise/temperature/load, column ``pos``; ``rec`` receives
+    (command, applied)."""
+    u = comp_step(CI, CP, CX, I, P, X, r, aux)
+    c = _safety(u, lims[0], lims[1], lims[2], last)
+    y = K.plant_step_flat(F, L, B, pos, c)
+    comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux)
+    rec[0] = u
+    rec[1] = c
+    return y
+
+
+@njit(cache=True, _nrt=False)
+def closed_loop_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
+                      oa: Any, F: np.ndarray, L: np.ndarray, B: np.ndarray, lims: np.ndarray, last: np.ndarray,
+                      ref: np.ndarray, aux: np.ndarray, out_cmd: np.ndarray, out_applied: np.ndarray,
+                      out_y: np.ndarray) -> int:
+    """n = len(ref) samples of the fused loop (see :func:`loop_step`); returns how many commands the
+    safety path changed (as :func:`command_path` counts them)."""
+    changed = 0
+    lo = lims[0]
+    hi = lims[1]
+    ms = lims[2]
+    for k in range(ref.shape[0]):
+        r = ref[k]
+        u = comp_step(CI, CP, CX, I, P, X, r, aux[k])
+        c = _safety(u, lo, hi, ms, last)
+        if c != u:
+            changed += 1
+        y = K.plant_step_flat(F, L, B, k, c)
+        comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux[k])
+        out_cmd[k] = u
+        out_applied[k] = c
+        out_y[k] = y
+    return changed
+
+
+# ====================================================================================================
+# the plant's per-sample inputs, drawn as its block mode draws them
+# ====================================================================================================
+
+
+class SimulatedLoop:
+    """The fused loop on a simulated plant (:class:`hilbench.sim.plant.Plant`) and a compensator.
+
+    ``inputs(n)`` prepares the next n samples' noise and trajectories from the plant's streams
+    (the order :meth:`Plant.simulate` uses), with the measured aux channels the compensator reads.
+    """
+
+    def __init__(self, plant: Any, comp: Compensator, lo: float, hi: float, max_step: float, last: np.ndarray):
+        self.plant = plant
+        self.comp = comp
+        self.lims = np.array([lo, hi, max_step])
+        self.last = last
+        for c in comp.channels:
+            if c not in plant.sensors:
+                raise UserError(f"the model reads channel {c!r}, which the rig does not measure",
+                                hint="fit a model without it, or add the sensor to the rig")
+
+    def inputs(self, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        p = self.plant
+        B = np.zeros((3, n))
+        t = (p.samples + np.arange(n)) / p.sample_rate_hz
+        truth: dict[str, np.ndarray] = {}
+        if "temperature" in p.tables:
+            B[K.B_TEMPERATURE] = truth["temperature"] = p._trajectory("temperature", t)
+        if "load" in p.tables:
+            B[K.B_LOAD] = truth["load"] = p._trajectory("load", t)
+        if p.S[K.S_NOISE_STD] > 0:
+            B[K.B_NOISE] = p._draw(p._rng_output, K.B_NOISE, n)
+        aux: dict[str, np.ndarray] = {}
+        for channel, row in p._aux_rows.items():
+            noise = p._draw(p._rng_aux[channel], row, n) if p.sensors[channel].noise_std > 0 else None
+            if channel in truth:
+                aux[channel] = p._read_aux(p.sensors[channel], truth[channel], noise)
+        p._pos = min(p.STEP_BATCH, p._pos + n)
+        return B, aux
+
+    def run(self, ref: np.ndarray) -> dict[str, Any]:
+        n = ref.shape[0]
+        B, aux = self.inputs(n)
+        c = self.comp
+        F, L = self.plant.step_arrays()
+        cmd, applied, y = np.empty(n), np.empty(n), np.empty(n)
+        changed = closed_loop_block(c.CI, c.CP, c.CX, c.I, c.P, c.X, c.oiir_arrays(), F, L, B, self.lims,
+                                    self.last, np.ascontiguousarray(ref, dtype=np.float64),
+                                    c.aux_matrix(aux, n), cmd, applied, y)
+        self.plant.samples += n
+        return {"command": cmd, "input": applied, "output": y, "aux": aux, "changed": changed}
+
+
+# ====================================================================================================
+# references
+# ====================================================================================================
+
+
+def reference_signal(spec: Any, sample_rate_hz: float) -> tuple[np.ndarray, Any]:
+    """A reference (um at the rig's rate) from an array, an excitation, the compact form
+    ``KIND:key=value,...`` or ``FILE.h5:RUN`` (that run's output channel). Returns (values, description)."""
+    if isinstance(spec, np.ndarray) or isinstance(spec, (list, tuple)):
+        values = np.asarray(spec, dtype=np.float64)
+        return values, {"kind": "array", "samples": int(values.size)}
+    if hasattr(spec, "generate"):
+        return spec.generate(sample_rate_hz), spec.describe()
+    text = str(spec)
+    head, sep, run_name = text.rpartition(":")
+    if sep and head.lower().endswith((".h5", ".hdf5")):
+        from hilbench.recording.hdf5 import Recording
+
+        run = Recording(head).run(run_name)
+        y = run.channel("output")
+        fs = run.sample_rate_hz
+        if abs(fs - sample_rate_hz) > 1e-9 * sample_rate_hz:
+            t_old = np.arange(y.size) / fs
+            t_new = np.arange(int(math.floor(t_old[-1] * sample_rate_hz)) + 1) / sample_rate_hz
+            y = np.interp(t_new, t_old, y)
+        if not np.all(np.isfinite(y)):
+            raise UserError(f"run {run.name} has non-finite output samples; a reference must be finite",
+                            where=text)
+        return y, {"kind": "recording", "file": head, "run": run.name, "units": run.units.get("output", "um")}
+    from hilbench.excitation.plan import plan_from_compact
+
+    runs = plan_from_compact([text])
+    if len(runs) != 1:
+        raise UserError("the reference must be one signal (no '|' sweeps)", where=f"--reference {text!r}")
+    exc = runs[0].excitation
+    return exc.generate(sample_rate_hz), exc.describe()
+
+
+# ====================================================================================================
+# track
+# ====================================================================================================
+
+
+@dataclass
+class TrackResult:
+    metrics: dict[str, float]
+    time: np.ndarray
+    reference: np.ndarray
+    command: np.ndarray
+    input: np.ndarray
+    output: np.ndarray
+    compensator: dict[str, Any]
+    file: str | None = None
+    group: str | None = None
+    limited: int = 0
+    aux: dict[str, np.ndarray] = field(default_factory=dict)
+    seconds: float = 0.0
+    approach_from: float = 0.0  # the applied command just before the first sample
+
+    @property
+    def error(self) -> np.ndarray:
+        return self.reference - self.output
+
+    def to_json(self) -> dict[str, Any]:
+        return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
+                "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,
+                "loop_seconds": self.seconds}
+
+
+def tracking_metrics(reference: np.ndarray, output: np.ndarray) -> dict[str, float]:
+    """The metric keys of :mod:`hilbench.identify.metrics`, read at call time (errors in um,
+    ``*_pct`` against the reference)."""
+    from hilbench.identify import metrics as M
+
+    values = M.metrics(reference, output)
+    return {k: float(values[k]) for k in M.METRIC_KEYS if k in values}
+
+
+def _open_rig(rig: Any) -> Any:
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+
+    if isinstance(rig, Rig):
+        return rig
+    return Rig(load_rig(rig))
+
+
+def _drive(rig: Any, comp: Compensator, target: float) -> None:
+    """Move the rig to ``target`` at its slew limit through its safety path (unrecorded), and feed
+    the same applied commands to the compensator's model memory."""
+    commands = ramp(rig.last_applied, target, rig.max_step)
+    if commands.shape[0] == 0:
+        return
+    applied = rig.apply(commands)
+    measured = rig.measure(applied)
+    comp.precondition(applied, {k: v for k, v in measured.items() if k in comp.channels})
+
+
+def track(
+    rig: Any,
+    model: Any,
+    reference: Any,
+    *,
+    feedback: PID | bool | None = None,
+    online: dict[str, Any] | bool | None = None,
+    output: str | Path | None = None,
+    label: str = "track",
+    method: str = "auto",
+    gain: float | str | None = "auto",
+    iterations: int = 1,
+    precondition: bool = True,
+    chunk_samples: int = 65536,
+) -> TrackResult:
+    """Track ``reference`` (um) on ``rig`` with the inverse of ``model`` (a fitted
+    :class:`~hilbench.models.Model` or its JSON file); see the module docstring.
+
+    ``feedback``: a :class:`PID` or True (default gains); ``online``: True or OIIR options for the
+    adaptive compensator (fpmpi models). ``precondition``: before the run, a full-range cycle
+    (up to the top of the range the model was fitted on, then to the first command) wipes the
+    actuator's memory so that the model's memory can match it. Writes a
+    run to ``output`` (appended when it exists) when given.
+    """
+    from hilbench.models import Model
+
+    if not hasattr(model, "weights"):
+        model = Model.load(model)
+    rig = _open_rig(rig)
+    fs = rig.sample_rate_hz
+    ref, described = reference_signal(reference, fs)
+    if ref.size == 0:
+        raise UserError("the reference is empty")
+    act = rig.actuator
+    span = float(np.ptp(ref[np.isfinite(ref)])) if np.any(np.isfinite(ref)) else 1.0
+    comp = Compensator(model, fs, (act.min, act.max), method=method, gain=gain, iterations=iterations,
+                       feedback=feedback, online=online, reference_span=max(span, 1e-9))
+    if precondition:
+        # up to the top of the range the model was fitted on (and the rig allows): every operator
+        # that the model knows switches, so model and actuator memories agree; then down to the start
+        top = min(act.max, float(model.norm.get("u_scale", act.max)))
+        _drive(rig, comp, max(top, act.min))
+    aux0 = _first_aux(rig, comp) if comp.channels else None
+    first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
+    _drive(rig, comp, first)
+    if rig.lockstep is not None:
+        rig.lockstep.start_run()
+    approach_from = rig.last_applied
+    started = time.perf_counter()
+    n = ref.size
+    cmd, applied, y = np.empty(n), np.empty(n), np.empty(n)
+    lateness = np.zeros(n)
+    aux_rec: dict[str, list[np.ndarray]] = {}
+    limited = 0
+    plant = getattr(rig.lockstep, "plant", None)
+    if plant is not None and hasattr(plant, "step_arrays"):
+        # Lock-step simulation: the fused loop; the rig's safety state is its own array (_last).
+        loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig._last)
+        for start in range(0, n, chunk_samples):
+            stop = min(n, start + chunk_samples)
+            out = loop.run(ref[start:stop])
+            cmd[start:stop], applied[start:stop], y[start:stop] = out["command"], out["input"], out["output"]
+            for k, v in out["aux"].items():
+                aux_rec.setdefault(k, []).append(v)
+            limited += out["changed"]
+        rig.clamped_samples += limited
+    else:
+        limited = _python_loop(rig, comp, ref, cmd, applied, y, lateness, aux_rec)
+    seconds = time.perf_counter() - started
+    aux = {k: np.concatenate(v) for k, v in aux_rec.items()}
+    result = TrackResult(tracking_metrics(ref, y), np.arange(n) / fs, ref, cmd, applied, y, comp.describe(),
+                         limited=limited, aux=aux, seconds=seconds, approach_from=approach_from)
+    result.compensator["counters"] = comp.counters()
+    result.compensator["reference"] = described
+    if output is not None:
+        result.file, result.group = _write(rig, result, output, label, lateness)
+    return result
+
+
+def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
+    """The aux channels' current readings (for the first command): one unrecorded held sample."""
+    measured = rig.measure(rig.apply(np.full(1, rig.last_applied)))
+    comp.precondition(np.full(1, rig.last_applied), {k: v for k, v in measured.items() if k in comp.channels})
+    return {k: float(measured[k][0]) for k in comp.channels}
+
+
+def _python_loop(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, applied: np.ndarray,
+                 y: np.ndarray, lateness: np.ndarray, aux_rec: dict[str, list[np.ndarray]]) -> int:
+    """A real rig, one sample at a time at the fixed rate; the lateness of each sample is recorded."""
+    period = 1.0 / rig.sample_rate_hz
+    realtime = not rig.config.simulated or rig.config.realtime
+    t0 = time.perf_counter()
+    changed_before = rig.clamped_samples
+    aux_now: dict[str, float] = {}
+    one = np.empty(1)
+    for k in range(ref.size):
+        if realtime:
+            due = t0 + k * period
+            now = time.perf_counter()
+            if now < due:
+                time.sleep(due - now)
+            lateness[k] = max(0.0, time.perf_counter() - due)
+        u = comp.step(float(ref[k]), aux_now if comp.channels else None)
+        one[0] = u
+        c = rig.apply(one)
+        measured = rig.measure(c)
+        aux_now = {ch: float(measured[ch][0]) for ch in comp.channels}
+        comp.update(float(ref[k]), float(c[0]), float(measured["output"][0]), aux_now if comp.channels else None)
+        cmd[k], applied[k], y[k] = u, c[0], measured["output"][0]
+        for ch, v in measured.items():
+            if ch != "output":
+                aux_rec.setdefault(ch, []).append(np.asarray(v, float))
+    return rig.clamped_samples - changed_before
+
+
+def _write(rig: Any, result: TrackResult, output: str | Path, label: str, lateness: np.ndarray) -> tuple[str, str]:
+    from hilbench.recording.hdf5 import ChannelSpec, RecordingWriter
+
+    writer = RecordingWriter(output)
+    channels = [c for c in rig.channels() if c.name in ("time", "input", "output") or c.name in result.aux]
+    channels += [ChannelSpec("reference", "um", "reference displacement"),
+                 ChannelSpec("error", "um", "tracking error: reference - output"),
+                 ChannelSpec("command", rig.actuator.unit, "compensator command before the safety path"),
+                 ChannelSpec("lateness", "s", "how late each sample of the fixed-rate loop was taken "
+                                                "(0: lock-step simulation)")]
+    run = writer.begin_run(label, channels, experiment="track", excitation=result.compensator.get("reference", {}),
+                           sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
+                           extra_attrs={"compensator": json.dumps(result.compensator, default=str)})
+    data = {"time": result.time, "input": result.input, "output": result.output, "reference": result.reference,
+            "error": result.error, "command": result.command, "lateness": lateness, **result.aux}
+    try:
+        run.append({c.name: data[c.name] for c in channels})
+    except BaseException as exc:
+        run.finish("failed", repr(exc))
+        raise
+    run.finish("complete", extra_attrs={"metrics": json.dumps(result.metrics)})
+    return str(output), run.group_name
+
+
+def plot_tracking(result: TrackResult, path: str | Path, title: str = "") -> Path:
+    """Three panels: reference and output over time, the error over time, desired vs actual
+    (matplotlib, Agg backend); the metrics in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    m = result.metrics
+    mean_key = next((k for k in ("mean_abs_error", "mad") if k in m), None)
+    max_key = next((k for k in ("max_abs_error", "mae") if k in m), None)
+    summary = f"MRE {m.get('mre_pct', float('nan')):.3g} %"
+    if max_key:
+        summary += f", max |e| {m[max_key]:.3g} um"
+    if mean_key:
+        summary += f", mean |e| {m[mean_key]:.3g} um"
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    ax = axes[0]
+    ax.plot(result.time, result.reference, label="reference", lw=1.2)
+    ax.plot(result.time, result.output, label="output", lw=0.8)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("displacement (um)")
+    ax.set_title("tracking")
+    ax.legend(loc="best")
+    ax = axes[1]
+    ax.plot(result.time, result.error, lw=0.7, color="C3")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("error: reference - output (um)")
+    ax.set_title("error")
+    ax = axes[2]
+    ax.plot(result.reference, result.output, lw=0.7)
+    lo, hi = float(np.nanmin(result.reference)), float(np.nanmax(result.reference))
+    ax.plot([lo, hi], [lo, hi], "k--", lw=0.6)
+    ax.set_xlabel("desired (um)")
+    ax.set_ylabel("actual (um)")
+    ax.set_title("desired vs actual")
+    fig.suptitle(f"{title + ': ' if title else ''}{result.compensator.get('method', '')} inverse of "
+                 f"{result.compensator.get('model', '')} - {summary}")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path
