@@ -10,10 +10,24 @@ import typer
 from hilbench.cli.app import (
     app,
     print_json,
+    show_progress,
     user_errors,
 )
 from hilbench.cli.summaries import diagnosis_lines, fit_report_lines
 from hilbench.errors import UserError
+
+
+def check_spec_early(spec: str, option: str = "--model") -> None:
+    """Refuse a malformed spec before any data is read (aux channels are checked against the data later)."""
+    from hilbench.identify.fitting import is_model_file
+    from hilbench.models.spec import SpecError, build_components
+
+    if option == "--model" and is_model_file(spec):
+        return
+    try:
+        build_components(spec)
+    except SpecError as exc:
+        raise SpecError(exc.message, where=option, hint=exc.hint) from None
 
 
 @app.command("fit")
@@ -54,6 +68,7 @@ def fit_(
     """
     from hilbench.identify.fitting import fit_or_evaluate, is_model_file
 
+    check_spec_early(model)
     if output is not None and is_model_file(model):
         raise UserError("-o writes a fitted model, but --model names a saved one, which is evaluated, not refitted",
                         where="-o", hint="use --json to keep the evaluation, or give a spec to refit")
@@ -62,8 +77,9 @@ def fit_(
         if not quiet:
             typer.echo(message, err=True)
 
-    result = fit_or_evaluate(data, model, train=train or None, test=test or None,
-                             train_fraction=train_fraction, progress=note)
+    with show_progress(quiet):
+        result = fit_or_evaluate(data, model, train=train or None, test=test or None,
+                                 train_fraction=train_fraction, progress=note)
     for line in result.notes:
         note(f"note: {line}")
     if output is not None:
@@ -97,9 +113,17 @@ def diagnose(
     train: list[str] = typer.Option([], "--train", metavar="RUN", help="Run that trains entirely. Repeatable."),
     test: list[str] = typer.Option([], "--test", metavar="RUN", help="Run that validates entirely. Repeatable."),
     train_fraction: float = typer.Option(0.7, "--train-fraction", help="Without --train/--test: the part of every run that trains."),
+    from_s: Optional[float] = typer.Option(
+        None, "--from", metavar="SECONDS", help="Leave out each run's rows before this time (s). Default: the rest "
+        "at the start of an imported capture, before its excitation, is left out and the notes say so; --from 0 keeps it.",
+    ),
+    to_s: Optional[float] = typer.Option(None, "--to", metavar="SECONDS", help="Leave out each run's rows from this time (s)."),
+    exclude: list[str] = typer.Option([], "--exclude", metavar="[RUN:]T0-T1",
+                                      help="Leave out a time window (s; 'end' for the run's end), of one run or all. Repeatable."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     report: Optional[Path] = typer.Option(None, "--report", metavar="DIR",
                                           help="Write a self-contained HTML report (DIR/report.html)."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar on stderr."),
 ) -> None:
     """Compare a model with measurements: where it fails, which physical effect is missing.
 
@@ -109,8 +133,15 @@ def diagnose(
     """
     from hilbench.diagnosis.diagnose import diagnose as run_diagnosis
 
-    result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
-                           train_fraction=train_fraction)
+    check_spec_early(model)
+    if add is not None:
+        check_spec_early(f"pi+{add}", option="--add")
+    from hilbench.identify.trimming import Trim, parse_window
+
+    with show_progress(quiet):
+        trim = Trim(auto=True, from_s=from_s, to_s=to_s, windows=[parse_window(w) for w in exclude])
+        result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
+                               train_fraction=train_fraction, trim=trim)
     document = result.to_json()
     page = None
     if report is not None:

@@ -7,7 +7,7 @@ from typing import Any
 
 def fit_report_lines(result: Any) -> list[str]:
     """Human summary of a :class:`hilbench.identify.fitting.FitResult`: spec, parameters, metric table, time."""
-    from hilbench.identify.metrics import METRIC_KEYS
+    from hilbench.identify.metrics import METRIC_KEYS, metric_unit
 
     model_dict = result.model.to_dict()
     how = "fitted" if result.refitted else f"loaded from {result.loaded_from}, not refitted"
@@ -26,13 +26,12 @@ def fit_report_lines(result: Any) -> list[str]:
         lines.append(f"weights [{y_unit}]: " + ", ".join(f"{w['name']}={w['value']:.4g}" for w in weights))
     else:
         lines.append(f"weights: {len(weights)} (see -o FIT.json or --json)")
-    units = {"rmse": y_unit, "mse": f"{y_unit}^2", "mae": y_unit, "mad": y_unit}
-    lines.append(f"{'metric':<18s}{'train':>14s}{'validation':>14s}")
+    lines.append(f"{'metric':<22s}{'train':>14s}{'validation':>14s}")
     for key in METRIC_KEYS:
-        label = f"{key} [{units.get(key, '%')}]"
+        label = f"{key} [{metric_unit(key, y_unit)}]"
         cells = [result.metrics[role][key] for role in ("train", "validation")]
-        lines.append(f"{label:<18s}" + "".join(f"{c:>14.5g}" if c == c else f"{'-':>14s}" for c in cells))
-    lines.append(f"{'samples':<18s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in ("train", "validation")))
+        lines.append(f"{label:<22s}" + "".join(f"{c:>14.5g}" if c == c else f"{'-':>14s}" for c in cells))
+    lines.append(f"{'samples':<22s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in ("train", "validation")))
     lines.append("runs:")
     for r in result.runs:
         rmse = "  ".join(f"{role} rmse {m['rmse']:.4g}" for role, m in r.metrics.items() if m)
@@ -61,6 +60,8 @@ def diagnosis_lines(d: dict[str, Any]) -> list[str]:
     trn = d["metrics"]["train"]
     lines = [f"model: {d['spec']}   rmse train {trn['rmse']:.4g}, validation {val['rmse']:.4g} "
              f"(erms {val['erms_pct']:.3g} % of range)"]
+    for note in d.get("notes", []):
+        lines.append(f"note: {note}")
     lines.append("where the validation error is (share of the squared error):")
     for entry in sorted(d["where"], key=lambda e: -e["share"])[:8]:
         lines.append(f"  {entry['kind']:<18s} {range_text(entry['range']):<42s} {100 * entry['share']:6.1f} %"

@@ -33,12 +33,15 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from hilbench import progress
+from hilbench.diagnosis.base_check import wrong_base
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.verdict import Candidate, judge, rank
 from hilbench.diagnosis.where import where
 from hilbench.identify.dataset import Dataset, as_dataset
+from hilbench.identify.trimming import Trim
 from hilbench.identify.fitting import FitResult, PathLike, finite_json, fit, fit_or_evaluate
 
 
@@ -69,6 +72,8 @@ class Diagnosis:
             "effects": [c.to_json() for c in self.effects],
             "untestable": self.untestable,
         }
+        if self.result.notes:  # what was left out and why, runs that did not complete, ...
+            out["notes"] = list(self.result.notes)
         if self.steps:
             out["steps"] = self.steps
         return finite_json(out)
@@ -79,8 +84,15 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
     noise = noise_floor(rows.e, rows.run)
     plan = testable(base.spec, base)
     every = residual_rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
-    cands = [judge(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None)
-             for eff in plan.tries]
+    cands = []
+    with progress.task(f"diagnose {base.spec}: effects", total=len(plan.tries)) as advance:
+        for eff in plan.tries:
+            advance(0, f"diagnose {base.spec}: trying {eff}")
+            cands.append(judge(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None))
+            advance(1)
+    other_base = wrong_base(paths, base, kw, noise)
+    if other_base is not None:
+        cands.append(other_base)
     rank(cands)
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
 
@@ -107,6 +119,7 @@ def diagnose(
     auto: bool = False,
     max_steps: int = 4,
     train_fraction: float = 0.7,
+    trim: Trim | None = None,
 ) -> Diagnosis:
     """Fit (or load) the model, find where it fails and which effect is missing.
 
@@ -115,9 +128,12 @@ def diagnose(
     of the final model; ``steps`` lists every model tried in order (the first is the start).
     A saved model is evaluated as is for ``metrics``; candidate effects are compared against its
     spec refitted on the same split, so both sides of every comparison saw the same training rows.
+    ``trim`` leaves rows out of training and scoring; by default (``Trim(auto=True)``) the rest at the
+    start of a capture whose history is unknown (an imported file), which the notes say.
     """
     kw = {"train": train, "test": test, "train_fraction": train_fraction}
-    paths = as_dataset(paths)  # read once: every refit below works on the same samples
+    # read once: every refit below works on the same samples and the same trimmed rows
+    paths = as_dataset(paths).trimmed(trim if trim is not None else Trim(auto=True))
     start = fit_or_evaluate(paths, spec_or_model_file, **kw)
     base = start if start.refitted else fit(paths, start.spec, **kw)
     steps = [_step(start, None)]
@@ -127,12 +143,14 @@ def diagnose(
     result = _diagnose_once(paths, base, kw)
     rounds = [result]
     if auto:
-        while len(steps) - 1 < max_steps and result.best is not None and result.best.significant:
-            best = result.best
-            base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
-            steps.append(_step(base, best.effect))
-            result = _diagnose_once(paths, base, kw)
-            rounds.append(result)
+        with progress.task(f"diagnose --auto: up to {max_steps} steps", total=max_steps) as advance:
+            while len(steps) - 1 < max_steps and result.best is not None and result.best.significant:
+                best = result.best
+                advance(1, f"diagnose --auto: step {len(steps)}, added {best.effect}")
+                base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
+                steps.append(_step(base, best.effect))
+                result = _diagnose_once(paths, base, kw)
+                rounds.append(result)
     result.rounds = rounds
     if add is None and not auto and not start.refitted:
         result.result = start  # report the saved model's own metrics

@@ -54,11 +54,12 @@ def inner_rmse(result: FitResult, inner: float, outer: float) -> float:
     of the user's split that the inner fit did not see."""
     parts = []
     for r in result.runs:
-        n = len(r.data)
+        rows = np.flatnonzero(r.train | r.validation)  # the rows the user's split keeps
+        n = rows.size
         lo, hi = int(math.floor(n * inner)), int(math.floor(n * outer))
-        if r.simulated is None or hi <= lo:
+        if r.simulated is None or r.simulated.size == 0 or hi <= lo:
             continue
-        e = (r.simulated - r.data.output)[lo:hi]
+        e = (r.simulated - r.data.output)[rows[lo:hi]]
         parts.append(e[np.isfinite(e)])
     e = np.concatenate(parts) if parts else np.zeros(0)
     return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")

@@ -55,3 +55,10 @@ AUX_MIN_VARIATION = 3.0
 #: Drive frequencies count as several when the spread (highest over lowest half-cycle frequency
 #: in time percentiles) reaches this ratio.
 SEVERAL_RATES_SPREAD = 1.5
+
+#: The base may be the wrong family only when the validation error exceeds this many noise floors:
+#: near the noise the loop shape is right enough and refitting every family would cost for nothing.
+WRONG_BASE_NOISE_FACTOR = 10.0
+#: Another base is suggested when it lowers the validation rmse by this factor: effects on a
+#: base of the right family give tens of percent; a wrong loop shape costs multiples.
+WRONG_BASE_RATIO = 2.0

@@ -21,6 +21,7 @@ from typing import Union
 import numpy as np
 
 from hilbench.errors import DataError, UserError
+from hilbench.identify.trimming import Trim
 from hilbench.models import RunData
 from hilbench.recording.hdf5 import Recording, Run
 
@@ -105,6 +106,46 @@ def _run_data(recording: Recording, selected: list[Run]) -> list[RunData]:
 
 
 
+def _aliases(run: RunData, stem: str, file: str, several: bool) -> set[str]:
+    name = run.name
+    names = {name, name.split("-", 1)[1] if "-" in name else name}
+    if name[:4].isdigit():
+        names.add(str(int(name[:4])))
+    if several:
+        names |= {f"{prefix}:{n}" for n in list(names) for prefix in (stem, file)}
+    return names
+
+
+def _folded(name: str) -> str:
+    """A run name as typed loosely: lower case, letters and digits only (``20_hz_no_lp`` -> ``20hznolp``)."""
+    return "".join(ch for ch in name.lower() if ch.isalnum())
+
+
+def match_runs(selectors: Sequence[str], runs: list[FitRun], option: str) -> set[int]:
+    """Runs named by ``selectors``: exactly (group name, label, number, ``stem:run``), else by a
+    unique short form (``20hz`` for ``0001-20_hz_no_lp``: the folded label starts with it)."""
+    files = sorted({r.data.source.get("file", "") for r in runs})
+    several = len(files) > 1
+    chosen: set[int] = set()
+    for selector in selectors:
+        hits = {i for i, r in enumerate(runs)
+                if selector in _aliases(r.data, Path(r.data.source.get("file", "")).stem,
+                                        r.data.source.get("file", ""), several)}
+        if not hits and _folded(selector):
+            short = _folded(selector)
+            hits = {i for i, r in enumerate(runs)
+                    if any(_folded(a).startswith(short) for a in _aliases(r.data, "", "", False) if not a.isdigit())}
+            if len(hits) > 1:
+                names = ", ".join(runs[i].key for i in sorted(hits))
+                raise DataError(f"{selector!r} is short for several runs ({names}); name one of them in full",
+                                where=option)
+        if not hits:
+            available = ", ".join(r.key for r in runs) or "none"
+            raise DataError(f"no run {selector!r} in {', '.join(files)}; available runs: {available}", where=option)
+        chosen |= hits
+    return chosen
+
+
 @dataclass
 class Dataset:
     """Every run of every file, read once (empty or incomplete runs noted), with the units."""
@@ -115,6 +156,8 @@ class Dataset:
     input_unit: str
     output_unit: str
     notes: list[str] = field(default_factory=list)
+    #: rows each run keeps for training and scoring (None: all), see :meth:`trimmed`
+    keep: list[np.ndarray] | None = None
 
     @classmethod
     def load(cls, path_or_paths: PathLike | Sequence[PathLike]) -> Dataset:
@@ -151,6 +194,24 @@ class Dataset:
         """Fresh runs for one fit: no roles yet, no model output."""
         return [FitRun(key, data, np.zeros(len(data), bool), np.zeros(len(data), bool))
                 for key, data in zip(self.keys, self.runs)]
+
+
+    def trimmed(self, trim: Trim | None) -> Dataset:
+        """The same runs with the rows ``trim`` leaves out marked (they are still simulated), and a
+        note per reason. The leading rest is left out only where the run's history is unknown (an
+        imported capture: it neither follows a recorded run nor starts from the rig's rest)."""
+        if trim is None or not trim.active:
+            return self
+        runs = self.fit_runs()
+        keeps, notes = [], list(self.notes)
+        for i, r in enumerate(runs):
+            history_known = r.data.chain or r.data.approach_from is not None
+            kept, why = trim.keep(r.data.input, r.data.sample_rate_hz,
+                                  lambda selector, i=i: i in match_runs([selector], runs, "--exclude"), r.key,
+                                  history_known=history_known)
+            keeps.append(kept)
+            notes.extend(why)
+        return Dataset(self.paths, self.runs, self.keys, self.input_unit, self.output_unit, notes, keeps)
 
 
 def as_dataset(data: Dataset | PathLike | Sequence[PathLike]) -> Dataset:

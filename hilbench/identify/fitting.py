@@ -30,9 +30,9 @@ import numpy as np
 
 from hilbench.errors import DataError, UserError
 from hilbench.identify import FitReport, fit_model
-from hilbench.identify.dataset import Dataset, FitRun, PathLike, as_dataset, load_runs
+from hilbench.identify.dataset import Dataset, FitRun, PathLike, as_dataset, load_runs, match_runs
 from hilbench.identify.metrics import METRIC_KEYS, metrics
-from hilbench.models import Model, RunData, SpecError
+from hilbench.models import Model, SpecError
 
 ROLES = ("train", "validation")
 
@@ -40,51 +40,31 @@ ROLES = ("train", "validation")
 # -- roles --------------------------------------------------------------------------------------
 
 
-def _aliases(run: RunData, stem: str, file: str, several: bool) -> set[str]:
-    name = run.name
-    names = {name, name.split("-", 1)[1] if "-" in name else name}
-    if name[:4].isdigit():
-        names.add(str(int(name[:4])))
-    if several:
-        names |= {f"{prefix}:{n}" for n in list(names) for prefix in (stem, file)}
-    return names
-
-
-def _match(selectors: Sequence[str], runs: list[FitRun], option: str) -> set[int]:
-    files = sorted({r.data.source.get("file", "") for r in runs})
-    several = len(files) > 1
-    chosen: set[int] = set()
-    for selector in selectors:
-        hits = {i for i, r in enumerate(runs)
-                if selector in _aliases(r.data, Path(r.data.source.get("file", "")).stem,
-                                        r.data.source.get("file", ""), several)}
-        if not hits:
-            available = ", ".join(r.key for r in runs) or "none"
-            raise DataError(f"no run {selector!r} in {', '.join(files)}; available runs: {available}", where=option)
-        chosen |= hits
-    return chosen
-
-
 def assign_roles(
-    runs: list[FitRun], train: Sequence[str] | None, test: Sequence[str] | None, train_fraction: float
+    runs: list[FitRun], train: Sequence[str] | None, test: Sequence[str] | None, train_fraction: float,
+    keep: Sequence[np.ndarray] | None = None,
 ) -> str:
     """Set the train/validation masks of ``runs`` in place; returns a one-line description.
 
-    No selectors: the first ``train_fraction`` of every run's samples train, the rest validate.
+    No selectors: the first ``train_fraction`` of every run's kept samples train, the rest validate.
     ``train`` only: the rest validate; ``test`` only: the rest train; both: runs in neither are unused.
+    ``keep`` (one mask per run, default all rows) leaves rows out of both roles (:mod:`.trimming`).
     """
     n_runs = len(runs)
+    keeps = list(keep) if keep is not None else [np.ones(len(r.data), bool) for r in runs]
     if not train and not test:
         if not 0.0 < train_fraction <= 1.0:
             raise UserError(f"the training fraction must be in (0, 1], got {train_fraction:g}", where="--train-fraction")
-        for r in runs:
+        for r, kept in zip(runs, keeps):
             idx = np.arange(len(r.data))
-            cut = int(math.floor(len(r.data) * train_fraction))
-            r.train, r.validation = idx < cut, idx >= cut
+            rows = np.flatnonzero(kept)
+            k = int(math.floor(rows.size * train_fraction))
+            cut = int(rows[k]) if k < rows.size else len(r.data)
+            r.train, r.validation = kept & (idx < cut), kept & (idx >= cut)
         pct = 100.0 * train_fraction
         return f"first {pct:g} % of each run trains, last {100.0 - pct:g} % validates"
-    train_set = _match(train or [], runs, "--train")
-    test_set = _match(test or [], runs, "--test")
+    train_set = match_runs(train or [], runs, "--train")
+    test_set = match_runs(test or [], runs, "--test")
     both = train_set & test_set
     if both:
         raise UserError(f"run(s) {', '.join(runs[i].key for i in sorted(both))} named both in --train and --test")
@@ -92,10 +72,9 @@ def assign_roles(
         train_set = set(range(n_runs)) - test_set
     if not test:
         test_set = set(range(n_runs)) - train_set
-    for i, r in enumerate(runs):
-        n = len(r.data)
-        r.train = np.full(n, i in train_set)
-        r.validation = np.full(n, i in test_set)
+    for i, (r, kept) in enumerate(zip(runs, keeps)):
+        r.train = kept & (i in train_set)
+        r.validation = kept & (i in test_set)
     return (f"runs {', '.join(runs[i].key for i in sorted(train_set)) or 'none'} train; "
             f"runs {', '.join(runs[i].key for i in sorted(test_set)) or 'none'} validate")
 
@@ -282,7 +261,7 @@ def fit(
     union, _ = _channels(runs)
     model = Model(spec, channels=union)
     _check_aux(model, runs)
-    split = assign_roles(runs, train, test, train_fraction)
+    split = assign_roles(runs, train, test, train_fraction, dataset.keep)
     if _training_size(runs) == 0:
         available = ", ".join(f"{r.key} ({len(r.data)} samples, {r.role})" for r in runs)
         raise UserError(f"the training set is empty ({split}): no training sample with a finite output; "
@@ -314,7 +293,7 @@ def evaluate(
     notes = list(dataset.notes)
     runs, u_unit, y_unit = dataset.fit_runs(), dataset.input_unit, dataset.output_unit
     _check_aux(model, runs)
-    split = assign_roles(runs, train, test, train_fraction)
+    split = assign_roles(runs, train, test, train_fraction, dataset.keep)
     _validation_note(runs, notes)
     overall = _score(runs, model)
     return FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,

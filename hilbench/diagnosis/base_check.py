@@ -1,0 +1,69 @@
+"""The wrong base is an effect too: when the hysteresis itself has the wrong shape, say which base fits.
+
+Small effects added on top of a base of the wrong family cannot fix its loop shape (a PMPI base on a
+rig whose loops are Duhem-like stays at tens of percent, where ``duhem-d`` reaches the noise). When
+the current validation error is far above the noise floor, the same spec is refitted with each base
+of another family (:data:`ALTERNATIVE_BASES`), keeping its effects; a base that lowers the
+validation error by WRONG_BASE_RATIO or more, with training improving too and the block test
+significant, is reported as the candidate ``base`` (its spec switches the base), so ``--auto``
+switches to it before adding effects.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.verdict import Candidate, block_test, relative_gain, validation_errors
+from hilbench.errors import UserError
+from hilbench.identify.fitting import FitResult, fit
+from hilbench.models.model import split_spec
+
+#: one base per family of loop shape: play operators, M-play with polynomial, ISSF-Duhem with a
+#: dead-zone and with a Gompertz shape, Bouc-Wen
+ALTERNATIVE_BASES = ("pi", "pmpi", "duhem-d", "duhem-g", "bouc-wen")
+
+
+def with_base(spec: str, base: str) -> str:
+    """``spec`` with its base replaced (its options dropped: they belong to the old base)."""
+    parts = spec.split("+")
+    return "+".join([base, *parts[1:]])
+
+
+def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float) -> Candidate | None:
+    """The best base of another family when it fits far better (module docstring); else None."""
+    current = split_spec(base.spec)[0][0]
+    old_v, old_t = base.metrics["validation"]["rmse"], base.metrics["train"]["rmse"]
+    if not old_v > T.WRONG_BASE_NOISE_FACTOR * noise or current == "linear":
+        return None  # near the noise the loop shape is right enough; a memoryless base needs hysteresis
+    tried: dict[str, float] = {}
+    best: FitResult | None = None
+    for alternative in ALTERNATIVE_BASES:
+        if alternative == current:
+            continue
+        try:
+            fitted = fit(paths, with_base(base.spec, alternative), **kw)
+        except UserError:
+            continue  # an effect the alternative cannot carry (e.g. asymmetry on pmpi's polynomial)
+        tried[alternative] = fitted.metrics["validation"]["rmse"]
+        if best is None or fitted.metrics["validation"]["rmse"] < best.metrics["validation"]["rmse"]:
+            best = fitted
+    if best is None:
+        return None
+    new_v, new_t = best.metrics["validation"]["rmse"], best.metrics["train"]["rmse"]
+    e_old, e_new = validation_errors(base), validation_errors(best)
+    p, better, blocks = block_test(e_old, e_new)
+    gain = relative_gain(old_v, new_v)
+    checks = {
+        f"validation_{T.WRONG_BASE_RATIO:g}x_lower": new_v * T.WRONG_BASE_RATIO <= old_v,
+        "training_lower_too": new_t < old_t,
+        "blocks_p_below_0.01": p < T.P_MAX,
+    }
+    name = split_spec(best.spec)[0][0]
+    sentence = (f"the loop itself has another shape: the base {name!r} fits with validation rmse {new_v:.4g} against "
+                f"{old_v:.4g} ({old_v / max(new_v, 1e-300):.3g}x lower), which no effect on {current!r} can reach; "
+                f"start from {best.spec!r}")
+    evidence = {"validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "p_value": p,
+                "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks, "spec": best.spec,
+                "bases_tried": tried, "current_base": current, "suggested_base": name}
+    return Candidate("base", best.spec, all(checks.values()), gain, sentence, evidence, fitted=best)

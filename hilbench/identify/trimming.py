@@ -1,0 +1,121 @@
+"""Which rows of a measured capture a model is scored on: rests before the excitation, user windows.
+
+Measured captures are whole: they start with the actuator at rest or at a bias voltage, often after
+a power-on step, and only then comes the excitation (the dSPACE captures of
+``shared/data/real/piezo-dspace-preisach`` rest 1.5 s at -90 V). Before the input first moves the
+model's memory is unknown (the actuator's history before the capture was not recorded) and a power-on
+transient is not explained by the recorded input at all, so such a leading rest says nothing about
+the model yet can hold most of the error. :func:`leading_rest` finds it; :class:`Trim` applies it
+and the user's ``--from/--to/--exclude`` windows. Trimmed rows are still simulated (the model's
+memory runs through them); they are only left out of training and scoring.
+
+Units: times in s from the start of each run, inputs in the command unit (V or A).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hilbench.errors import UserError
+from hilbench.identify.statistics import difference_noise_std
+
+#: A leading rest counts when the input holds still at least this long before it first moves (s):
+#: shorter stills are part of an excitation (a staircase's first level, a step's pre-trigger).
+MIN_REST_S = 0.2
+#: The input "holds still" while it stays within this many of its own noise stds of the first value
+#: (a recorded voltage carries noise; a digital command has none).
+REST_NOISE_SIGMAS = 5.0
+#: ... and within this fraction of its range, whatever the noise estimate says.
+REST_SPAN_FRACTION = 0.002
+
+
+def leading_rest(u: np.ndarray, sample_rate_hz: float) -> int:
+    """Samples at the start of a run during which the input rests before the excitation (0: none)."""
+    n = u.shape[0]
+    if n < 16:
+        return 0
+    finite = np.isfinite(u)
+    if not finite.all():
+        return 0
+    span = float(np.ptp(u))
+    if span == 0.0:
+        return 0  # the whole run rests: nothing follows to score instead
+    noise = difference_noise_std(np.diff(u, 4), order=4) if n > 8 else 0.0
+    band = max(REST_NOISE_SIGMAS * noise, REST_SPAN_FRACTION * span)
+    moved = np.flatnonzero(np.abs(u - u[0]) > band)
+    if moved.size == 0:
+        return 0
+    k = int(moved[0])
+    return k if k >= MIN_REST_S * sample_rate_hz and k < n - 16 else 0
+
+
+_WINDOW = re.compile(r"^\s*(?:(?P<run>[^:]+):)?\s*(?P<t0>[0-9.eE+-]+)\s*-\s*(?P<t1>[0-9.eE+-]+|end)\s*$")
+
+
+def parse_window(text: str) -> tuple[str | None, float, float]:
+    """``RUN:T0-T1`` or ``T0-T1`` (s; ``end`` for the run's end) -> (run selector or None, t0, t1)."""
+    m = _WINDOW.match(text)
+    if not m:
+        raise UserError(f"cannot read {text!r}; expected T0-T1 or RUN:T0-T1 in seconds (e.g. 0-1.5, 20hz:0-1.5, "
+                        "2.5-end)", where="--exclude")
+    try:
+        t0 = float(m.group("t0"))
+        t1 = math.inf if m.group("t1") == "end" else float(m.group("t1"))
+    except ValueError:
+        raise UserError(f"cannot read the times in {text!r}; expected numbers in seconds", where="--exclude") from None
+    if not (math.isfinite(t0) and t0 >= 0 and t1 > t0):
+        raise UserError(f"{text!r}: expected 0 <= T0 < T1", where="--exclude")
+    return m.group("run"), t0, t1
+
+
+@dataclass
+class Trim:
+    """Rows left out of training and scoring. ``auto`` leaves out each run's leading rest."""
+
+    auto: bool = False
+    from_s: float | None = None
+    to_s: float | None = None
+    windows: list[tuple[str | None, float, float]] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for name, value in (("--from", self.from_s), ("--to", self.to_s)):
+            if value is not None and not (math.isfinite(value) and value >= 0):
+                raise UserError(f"expected a time >= 0 in seconds, got {value!r}", where=name)
+        if self.from_s is not None and self.to_s is not None and self.to_s <= self.from_s:
+            raise UserError(f"--to {self.to_s:g} s must come after --from {self.from_s:g} s")
+
+    @property
+    def active(self) -> bool:
+        return self.auto or self.from_s is not None or self.to_s is not None or bool(self.windows)
+
+    def keep(self, u: np.ndarray, sample_rate_hz: float, matches: Callable[[str], bool], name: str, *,
+             history_known: bool = False) -> tuple[np.ndarray, list[str]]:
+        """Rows to keep of one run, and one note per reason rows were left out. ``history_known``: the
+        run follows a recorded one or starts from the rig's rest, so its leading rest is data."""
+        n = u.shape[0]
+        t = np.arange(n) / sample_rate_hz
+        keep = np.ones(n, bool)
+        notes: list[str] = []
+        if self.auto and self.from_s is None and not history_known:
+            k = leading_rest(u, sample_rate_hz)
+            if k:
+                keep[:k] = False
+                notes.append(f"run {name}: left out 0-{k / sample_rate_hz:.4g} s, where the input rests at "
+                             f"{u[0]:.4g} before the excitation starts (the model's memory there is unknown and a "
+                             "power-on transient is not explained by the input; --from 0 keeps it)")
+        if self.from_s is not None and self.from_s > 0:
+            keep &= t >= self.from_s
+            notes.append(f"run {name}: left out 0-{self.from_s:.4g} s (--from)")
+        if self.to_s is not None:
+            keep &= t < self.to_s
+            notes.append(f"run {name}: left out {self.to_s:.4g} s to the end (--to)")
+        for run, t0, t1 in self.windows:
+            if run is None or matches(run):
+                keep &= ~((t >= t0) & (t < t1))
+                notes.append(f"run {name}: left out {t0:.4g}-{t1:.4g} s (--exclude)")
+        return keep, notes
