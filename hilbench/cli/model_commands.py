@@ -135,7 +135,9 @@ def diagnose(
 
     check_spec_early(model)
     if add is not None:
-        check_spec_early(f"pi+{add}", option="--add")
+        from hilbench.diagnosis.refit import spec_with  # 'hysteresis' replaces a linear base
+
+        check_spec_early(spec_with("linear", add), option="--add")
     from hilbench.identify.trimming import Trim, parse_window
 
     with show_progress(quiet):

@@ -4,13 +4,14 @@ Small effects added on top of a base of the wrong family cannot fix its loop sha
 rig whose loops are Duhem-like stays at tens of percent, where ``duhem-d`` reaches the noise). When
 the current validation error is far above the noise floor, the same spec is refitted with each base
 of another family (:data:`ALTERNATIVE_BASES`), keeping its effects; a base that lowers the
-validation error by WRONG_BASE_RATIO or more, with training improving too and the block test
-significant, is reported as the candidate ``base`` (its spec switches the base), so ``--auto``
+validation error by WRONG_BASE_RATIO or more, and by as much against the best single effect on the
+current base, with training improving too and the block test significant, is reported as the candidate ``base`` (its spec switches the base), so ``--auto``
 switches to it before adding effects.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from hilbench.diagnosis import thresholds as T
@@ -30,8 +31,14 @@ def with_base(spec: str, base: str) -> str:
     return "+".join([base, *parts[1:]])
 
 
-def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float) -> Candidate | None:
-    """The best base of another family when it fits far better (module docstring); else None."""
+def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float,
+               effect_rmse: Sequence[float] = ()) -> Candidate | None:
+    """The best base of another family when it fits far better (module docstring); else None.
+
+    ``effect_rmse``: the validation rmse each single effect reached on the current base. Another
+    base must beat the best of them by WRONG_BASE_RATIO too: a base whose terms include an effect
+    (PMPI's cubic polynomial is asymmetry) is no evidence that the loop shape is wrong when adding
+    that effect does as well."""
     current = split_spec(base.spec)[0][0]
     old_v, old_t = base.metrics["validation"]["rmse"], base.metrics["train"]["rmse"]
     if not old_v > T.WRONG_BASE_NOISE_FACTOR * noise or current == "linear":
@@ -54,8 +61,10 @@ def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float) ->
     e_old, e_new = validation_errors(base), validation_errors(best)
     p, better, blocks = block_test(e_old, e_new)
     gain = relative_gain(old_v, new_v)
+    best_effect = min([old_v, *[v for v in effect_rmse if v == v]])
     checks = {
         f"validation_{T.WRONG_BASE_RATIO:g}x_lower": new_v * T.WRONG_BASE_RATIO <= old_v,
+        f"{T.WRONG_BASE_RATIO:g}x_lower_than_any_effect": new_v * T.WRONG_BASE_RATIO <= best_effect,
         "training_lower_too": new_t < old_t,
         "blocks_p_below_0.01": p < T.P_MAX,
     }
@@ -64,6 +73,7 @@ def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float) ->
                 f"{old_v:.4g} ({old_v / max(new_v, 1e-300):.3g}x lower), which no effect on {current!r} can reach; "
                 f"start from {best.spec!r}")
     evidence = {"validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "p_value": p,
+                "best_effect_rmse": best_effect,
                 "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks, "spec": best.spec,
                 "bases_tried": tried, "current_base": current, "suggested_base": name}
     return Candidate("base", best.spec, all(checks.values()), gain, sentence, evidence, fitted=best)

@@ -5,8 +5,9 @@ a power-on step, and only then comes the excitation (the dSPACE captures of
 ``shared/data/real/piezo-dspace-preisach`` rest 1.5 s at -90 V). Before the input first moves the
 model's memory is unknown (the actuator's history before the capture was not recorded) and a power-on
 transient is not explained by the recorded input at all, so such a leading rest says nothing about
-the model yet can hold most of the error. :func:`leading_rest` finds it; :class:`Trim` applies it
-and the user's ``--from/--to/--exclude`` windows. Trimmed rows are still simulated (the model's
+the model yet can hold most of the error. :func:`leading_rest` finds it and :func:`unsettled_rest`
+tells whether the output shows such a history (it moves on its own during the rest); :class:`Trim`
+applies it and the user's ``--from/--to/--exclude`` windows. Trimmed rows are still simulated (the model's
 memory runs through them); they are only left out of training and scoring.
 
 Units: times in s from the start of each run, inputs in the command unit (V or A).
@@ -32,6 +33,14 @@ MIN_REST_S = 0.2
 REST_NOISE_SIGMAS = 5.0
 #: ... and within this fraction of its range, whatever the noise estimate says.
 REST_SPAN_FRACTION = 0.002
+#: The output shows the capture began mid-history when, early in the rest, it sits this many noise
+#: stds (and this fraction of its range) away from where the rest settles: a power-on step or the
+#: creep of an earlier move. A capture that starts settled at rest is data like any other.
+TRANSIENT_NOISE_SIGMAS = 10.0
+TRANSIENT_SPAN_FRACTION = 0.01
+#: ... and has mostly decayed: its early departure exceeds the drift over the rest's last half this many
+#: times (a power-on step settles; the dSPACE captures: 3.5 um early, 0.02 um late).
+TRANSIENT_DECAY_RATIO = 5.0
 
 
 def leading_rest(u: np.ndarray, sample_rate_hz: float) -> int:
@@ -52,6 +61,31 @@ def leading_rest(u: np.ndarray, sample_rate_hz: float) -> int:
         return 0
     k = int(moved[0])
     return k if k >= MIN_REST_S * sample_rate_hz and k < n - 16 else 0
+
+
+def unsettled_rest(y: np.ndarray, rest: int) -> bool:
+    """Whether the output moves on its own during the first quarter of a leading rest of ``rest``
+    samples (a power-on transient, creep of an earlier move), compared with where the rest settles."""
+    if rest < 32:
+        return False
+    settled_part = y[rest // 2:rest]
+    settled_part = settled_part[np.isfinite(settled_part)]
+    early = y[:max(rest // 4, 8)]
+    early = early[np.isfinite(early)]
+    if settled_part.size < 16 or early.size < 4:
+        return False
+    settled = float(np.median(settled_part))
+    noise = difference_noise_std(np.diff(settled_part, 4), order=4)
+    finite = y[np.isfinite(y)]
+    span = float(np.ptp(finite)) if finite.size else 0.0
+    departure = float(np.percentile(np.abs(early - settled), 95))
+    # a transient decays: most of the movement is over early; a steady drift through the whole rest
+    # (a temperature ramp the model reads from its channel) is data, not an unknown history
+    late = y[rest // 2:rest]
+    half = late.size // 2
+    late_drift = abs(float(np.nanmedian(late[half:])) - float(np.nanmedian(late[:half])))
+    return (departure > max(TRANSIENT_NOISE_SIGMAS * noise, TRANSIENT_SPAN_FRACTION * span)
+            and departure > TRANSIENT_DECAY_RATIO * late_drift)
 
 
 _WINDOW = re.compile(r"^\s*(?:(?P<run>[^:]+):)?\s*(?P<t0>[0-9.eE+-]+)\s*-\s*(?P<t1>[0-9.eE+-]+|end)\s*$")
@@ -93,8 +127,8 @@ class Trim:
     def active(self) -> bool:
         return self.auto or self.from_s is not None or self.to_s is not None or bool(self.windows)
 
-    def keep(self, u: np.ndarray, sample_rate_hz: float, matches: Callable[[str], bool], name: str, *,
-             history_known: bool = False) -> tuple[np.ndarray, list[str]]:
+    def keep(self, u: np.ndarray, y: np.ndarray, sample_rate_hz: float, matches: Callable[[str], bool], name: str,
+             *, history_known: bool = False) -> tuple[np.ndarray, list[str]]:
         """Rows to keep of one run, and one note per reason rows were left out. ``history_known``: the
         run follows a recorded one or starts from the rig's rest, so its leading rest is data."""
         n = u.shape[0]
@@ -103,7 +137,7 @@ class Trim:
         notes: list[str] = []
         if self.auto and self.from_s is None and not history_known:
             k = leading_rest(u, sample_rate_hz)
-            if k:
+            if k and unsettled_rest(y, k):
                 keep[:k] = False
                 notes.append(f"run {name}: left out 0-{k / sample_rate_hz:.4g} s, where the input rests at "
                              f"{u[0]:.4g} before the excitation starts (the model's memory there is unknown and a "

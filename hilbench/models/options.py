@@ -27,7 +27,7 @@ class Option:
             return "a name"
         if self.kind == "int":
             if self.minimum == 1 and self.maximum is None:
-                text = "a positive integer"
+                text = "a positive integer (at least 1)"
             elif self.minimum == 0 and self.maximum is None:
                 text = "an integer >= 0"
             else:

@@ -131,7 +131,9 @@ def check_options(name: str, schema: dict[str, Any], options: dict[str, Any], sp
             out[key] = option.check(value)
         except ValueError as exc:
             unit = f" ({option.unit})" if option.unit else ""
-            raise SpecError(f"{name}({key}={value}): expected {exc}, got {value!r} in spec {spec!r}",
+            bounded = option.kind == "int" and option.minimum is not None and option.maximum is not None
+            rule = f"; {key} must be {option.minimum:g} to {option.maximum:g}" if bounded else ""
+            raise SpecError(f"{name}({key}={value}): expected {exc}, got {value!r}{rule} in spec {spec!r}",
                             where="--model", hint=f"{key}{unit}: {option.doc}" if option.doc else None) from None
     return out
 

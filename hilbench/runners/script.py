@@ -260,35 +260,21 @@ class Bench:
         return [run for path in self._data(data) for run in load_runs(path)]
 
     # -- closed loop ----------------------------------------------------------------------------------
-    @staticmethod
-    def _tracker() -> Callable[..., Any] | None:
-        """The closed-loop tracker of :mod:`hilbench.online`, looked up now (it may arrive later)."""
-        import importlib
-
-        for module_name in ("hilbench.online", "hilbench.online.tracking", "hilbench.online.track"):
-            try:
-                module = importlib.import_module(module_name)
-            except ImportError:
-                continue
-            tracker = getattr(module, "track", None)
-            if callable(tracker):
-                return tracker
-        return None
-
     @property
     def can_track(self) -> bool:
-        return self._tracker() is not None
+        """Always True now that hilbench.online has the closed loop (kept for scripts that ask)."""
+        return True
 
-    def track(self, *args: Any, **kw: Any) -> Any:
-        """Track a reference in closed loop on the rig (``hilbench.online``'s tracker)."""
-        tracker = self._tracker()
-        if tracker is None:
-            raise UserError("bench.track(): tracking arrives with the closed-loop issue; hilbench.online has no "
-                            "tracker yet", hint="check bench.can_track before calling bench.track()")
+    def track(self, reference: Any, model: Any, **kw: Any) -> Any:
+        """Track ``reference`` (um: an array at the rig's rate or a compact excitation) in closed loop with
+        the inverse of ``model`` (a fitted Model or a FIT.json path); see :func:`hilbench.online.tracking.track`
+        for ``feedback``, ``online``, ``output`` (relative to the output folder) and the rest."""
+        from hilbench.online import tracking
+
         self._check_open()
         if "output" in kw:
             kw["output"] = self.path(kw["output"])
-        return tracker(self.rig, *args, **kw)
+        return tracking.track(self.rig, model, reference, **kw)
 
     # -- more rigs, messages, results -----------------------------------------------------------------
     def open_rig(self, name_or_path: str | os.PathLike[str]) -> Bench:

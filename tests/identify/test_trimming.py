@@ -85,3 +85,16 @@ def test_short_run_names_and_a_clear_error_listing_the_runs(tmp_path):
         fit(path, "pi", train=["100hz"])
     with pytest.raises(DataError, match="short for several runs"):
         fit(path, "pi", train=["0"])  # the start of both group names
+
+
+def test_a_capture_that_starts_settled_keeps_its_rest(tmp_path):
+    """A rest whose output does not move on its own is data like any other (a virgin actuator at rest)."""
+    t = np.arange(0, 4.0, 1 / FS)
+    u = np.where(t < 1.0, 0.0, 90.0 * np.sin(2 * np.pi * 2.0 * (t - 1.0)))
+    y = _pi(u) + np.random.default_rng(5).normal(0, 0.01, t.size)
+    path = tmp_path / "settled.h5"
+    RecordingWriter(path).write_run("r", {"time": t, "input": u, "output": y}, UNITS, experiment="import",
+                                    excitation="", sample_rate_hz=FS)
+    data = Dataset.load(path).trimmed(Trim(auto=True))
+    assert data.keep is not None and data.keep[0].all()
+    assert not any("left out" in n for n in data.notes)

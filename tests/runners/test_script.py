@@ -269,31 +269,24 @@ def test_command_line_errors_name_what_is_wrong(tmp_path):
         run("run", str(path), "--rig", "no-such-rig"), 2)
 
 
-def test_track_says_it_arrives_with_the_closed_loop_issue_until_a_tracker_exists(tmp_path, monkeypatch):
-    import hilbench.online
-
-    monkeypatch.delattr(hilbench.online, "track", raising=False)
-    path = script(tmp_path, """
-        bench.report(can_track=bench.can_track)
-        bench.track([0.0, 1.0], output="t.h5")
-    """)
-    result = run("run", str(path), "--rig", "piezo-pmpi", "-o", str(tmp_path / "out"))
-    assert "tracking arrives with the closed-loop issue" in one_line_error(result, 2)
+def test_bench_track_hands_the_reference_and_model_to_the_closed_loop(tmp_path, monkeypatch):
+    from hilbench.online import tracking
 
     seen = {}
 
-    def fake_track(rig, reference, **kw):
-        seen.update(rig=rig.config.name, reference=list(reference), **kw)
+    def fake_track(rig, model, reference, **kw):
+        seen.update(rig=rig.config.name, model=model, reference=list(reference), **kw)
         return "tracked"
 
-    monkeypatch.setattr(hilbench.online, "track", fake_track, raising=False)
+    monkeypatch.setattr(tracking, "track", fake_track)
     path = script(tmp_path, """
-        bench.report(can_track=bench.can_track, result=bench.track([0.0, 1.0], output="t.h5"))
+        bench.report(can_track=bench.can_track, result=bench.track([0.0, 1.0], "fit.json", output="t.h5"))
     """)
     result = run("run", str(path), "--rig", "piezo-pmpi", "-o", str(tmp_path / "out"), "--json")
     assert result.exit_code == 0, result.output
     assert json.loads(result.stdout)["results"] == {"can_track": True, "result": "tracked"}
-    assert seen == {"rig": "piezo-pmpi", "reference": [0.0, 1.0], "output": tmp_path / "out" / "t.h5"}
+    assert seen == {"rig": "piezo-pmpi", "model": "fit.json", "reference": [0.0, 1.0],
+                    "output": tmp_path / "out" / "t.h5"}
 
 
 def test_a_second_rig_opened_by_the_script_is_closed_with_the_first(tmp_path, stage):
