@@ -1,0 +1,253 @@
+"""Independent randomized benchmark of ``hilbench.diagnosis.diagnose``: does the diagnosis find an effect
+it was never tuned to?
+
+    python benchmarks/bench_diagnosis_random.py                       # 200 cases, diagnosis only
+    python benchmarks/bench_diagnosis_random.py --cases 60 --auto     # also diagnose(..., auto=True)
+    python benchmarks/bench_diagnosis_random.py --cases 200 --auto-cases 60 --workers 2
+    python benchmarks/bench_diagnosis_random.py --only 3 17 42        # these case seeds
+
+Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
+--cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
+random, recorded as a bench records it, and the start spec without the effect. Each case is written
+to an HDF5 recording in a temp dir and diagnosed with that start spec and the case's split.
+
+Prints one JSON document on stdout (progress on stderr):
+
+* ``cases``: per case: seed, kind (single / two / clean), hidden effects and forms, start spec,
+  samples, snr (the hidden effect's contribution rms over the noise rms), ``ranked_first``,
+  ``significant`` (the significant effects, best first), ``untestable``, validation rmse of the start
+  model; with ``--auto``: ``auto_added`` (the effects added in order) and ``rmse_before``/``rmse_after``
+  and ``reduction`` (before / after); ``error`` when the diagnosis raised (the traceback's last line);
+* ``confusion_ranked_first``: hidden effect (rows; a two-effect case counts under ``a+b``) vs the
+  significant effect ranked first (columns; ``nothing`` when none is significant);
+  ``confusion_auto_first``: hidden vs the first effect ``--auto`` added;
+* ``rates``: hidden effect ranked first and significant (single and two-effect cases: first is one
+  of the hidden), clean cases with nothing significant, median error reduction of ``--auto`` where
+  an effect is hidden, share of those with a reduction of 3x or more; per effect and per form;
+* ``targets`` (issue): ranked first >= 95 %, clean with nothing flagged >= 95 %, median --auto
+  reduction >= 3x; ``meets_target`` flags;
+* runtime.
+
+Nothing is tuned per case: the generator draws from physics and measurement practice, the diagnosis
+runs with its defaults.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import statistics
+import sys
+import tempfile
+import time
+import traceback
+from collections import Counter, defaultdict
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _common as C
+
+TARGET_FIRST = 0.95
+TARGET_CLEAN = 0.95
+TARGET_REDUCTION = 3.0
+MAX_WORKERS = 2
+
+
+def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
+    """Draw, write and diagnose one case; never raises (an exception is the case's result)."""
+    import diagnosis_cases as DC
+
+    t0 = time.perf_counter()
+    out: dict[str, Any] = {"seed": seed}
+    try:
+        case = DC.draw_case(seed)
+        out.update(kind=case.kind, hidden=case.hidden, forms=case.forms, family=case.family, spec=case.spec,
+                   sample_rate_hz=case.sample_rate_hz, input_unit=case.input_unit, runs=len(case.runs),
+                   split=case.split, snr=case.snr, noise_pct=100.0 * case.noise_std_um / case.output_span_um)
+        paths, kw = DC.write_case(case, Path(folder) / f"c{seed}")
+        out["samples"] = case.samples()
+    except Exception as exc:  # noqa: BLE001 - a generator failure is reported too
+        out.update(error=f"generator: {type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=4))
+        return out
+    from hilbench.diagnosis.diagnose import diagnose
+
+    try:
+        t1 = time.perf_counter()
+        # with auto, the first round of the auto run is the plain diagnosis (the same fits): one call
+        da = diagnose(paths, case.spec, auto=auto, **kw)
+        d = da.rounds[0] if auto and da.rounds else da
+        out["diagnose_s" if not auto else "auto_s"] = time.perf_counter() - t1
+        sig = [c.effect for c in d.effects if c.significant]
+        out.update(ranked_first=d.effects[0].effect if d.effects else None,
+                   first_significant=bool(d.effects and d.effects[0].significant),
+                   significant=sig,
+                   gains={c.effect: round(float(c.expected_gain), 4) for c in d.effects},
+                   untestable=[u["effect"] for u in d.untestable],
+                   validation_rmse=float(d.result.metrics["validation"]["rmse"]), noise_floor=float(d.noise))
+        if auto:
+            steps = da.steps or []
+            before = float(steps[0]["validation"]["rmse"]) if steps else out["validation_rmse"]
+            after = float(steps[-1]["validation"]["rmse"]) if steps else before
+            out.update(auto_added=[s["added"] for s in steps[1:]], rmse_before=before, rmse_after=after,
+                       reduction=before / after if after > 0 else None, final_spec=da.spec)
+    except Exception as exc:  # noqa: BLE001 - the exception is the case's result
+        out.update(error=f"diagnose: {type(exc).__name__}: {exc}", traceback=traceback.format_exc(limit=6))
+        return out
+    out["seconds"] = time.perf_counter() - t0
+    C.note(f"case {seed}: {out.get('kind')} {'+'.join(out.get('hidden', []))} -> first {out.get('ranked_first')} "
+           f"sig {out.get('significant')} auto {out.get('auto_added')} ({out['seconds']:.1f} s)")
+    return out
+
+
+_JSONL: str | None = None
+
+
+def _worker(args: tuple[int, bool, str]) -> dict[str, Any]:
+    r = run_case(*args)
+    if _JSONL:  # one line per finished case, so a long run can be read (and summarised) while it runs
+        with open(_JSONL, "a", encoding="utf-8") as f:
+            f.write(json.dumps(r, default=float) + "\n")
+    return r
+
+
+def _hidden_key(r: dict[str, Any]) -> str:
+    return "+".join(r["hidden"])
+
+
+def _first_flag(r: dict[str, Any]) -> str:
+    """The significant effect ranked first, or ``nothing``."""
+    return r["significant"][0] if r.get("significant") else "nothing"
+
+
+def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
+    ok = [r for r in results if "error" not in r]
+    confusion: dict[str, Counter] = defaultdict(Counter)
+    confusion_auto: dict[str, Counter] = defaultdict(Counter)
+    for r in ok:
+        confusion[_hidden_key(r)][_first_flag(r)] += 1
+        if "auto_added" in r:
+            confusion_auto[_hidden_key(r)][(r["auto_added"] or ["nothing"])[0]] += 1
+
+    def hit(r: dict[str, Any]) -> bool:
+        return bool(r.get("significant")) and r["significant"][0] in r["hidden"] and r.get("ranked_first") == r["significant"][0]
+
+    hidden = [r for r in ok if r["kind"] != "clean"]
+    clean = [r for r in ok if r["kind"] == "clean"]
+    by_effect: dict[str, list[bool]] = defaultdict(list)
+    by_form: dict[str, list[bool]] = defaultdict(list)
+    for r in hidden:
+        if r["kind"] == "single":
+            h = r["hidden"][0]
+            by_effect[h].append(hit(r))
+            by_form[f"{h}:{r['forms'].get(h, '-')}"].append(hit(r))
+    red = [r["reduction"] for r in hidden if r.get("reduction") is not None]
+    red_by_effect: dict[str, list[float]] = defaultdict(list)
+    for r in hidden:
+        if r.get("reduction") is not None and r["kind"] == "single":
+            red_by_effect[r["hidden"][0]].append(r["reduction"])
+    auto_clean = [r for r in clean if "auto_added" in r]
+
+    def rate(xs: list[bool]) -> float | None:
+        return sum(xs) / len(xs) if xs else None
+
+    rates = {
+        "hidden_ranked_first_and_significant": rate([hit(r) for r in hidden]),
+        "hidden_ranked_first_single": rate([hit(r) for r in hidden if r["kind"] == "single"]),
+        "hidden_ranked_first_two_effect": rate([hit(r) for r in hidden if r["kind"] == "two"]),
+        "hidden_is_significant_anywhere": rate([any(h in r.get("significant", []) for h in r["hidden"]) for r in hidden]),
+        "clean_nothing_flagged": rate([not r.get("significant") for r in clean]),
+        "clean_nothing_added_by_auto": rate([not r["auto_added"] for r in auto_clean]),
+        "median_auto_reduction_where_hidden": statistics.median(red) if red else None,
+        "share_auto_reduction_3x_or_more": rate([x >= 3.0 for x in red]),
+        "auto_added_a_hidden_effect_first": rate([bool(r["auto_added"]) and r["auto_added"][0] in r["hidden"]
+                                                   for r in hidden if "auto_added" in r]),
+        "n_hidden": len(hidden), "n_clean": len(clean), "n_auto_hidden": len(red), "n_auto_clean": len(auto_clean),
+        "n_errors": len(results) - len(ok),
+    }
+    return {
+        "confusion_ranked_first": {k: dict(v) for k, v in sorted(confusion.items())},
+        "confusion_auto_first": {k: dict(v) for k, v in sorted(confusion_auto.items())} if auto else None,
+        "rates": rates,
+        "by_effect": {k: {"n": len(v), "ranked_first": rate(v),
+                          "median_auto_reduction": statistics.median(red_by_effect[k]) if red_by_effect[k] else None}
+                      for k, v in sorted(by_effect.items())},
+        "by_form": {k: {"n": len(v), "ranked_first": rate(v)} for k, v in sorted(by_form.items())},
+        "targets": {"hidden_ranked_first": TARGET_FIRST, "clean_nothing_flagged": TARGET_CLEAN,
+                    "median_auto_reduction": TARGET_REDUCTION},
+        "meets_target": {
+            "hidden_ranked_first": (rates["hidden_ranked_first_and_significant"] or 0) >= TARGET_FIRST,
+            "clean_nothing_flagged": (rates["clean_nothing_flagged"] or 0) >= TARGET_CLEAN,
+            "median_auto_reduction": (rates["median_auto_reduction_where_hidden"] or 0) >= TARGET_REDUCTION if auto else None,
+        },
+        "errors": [{"seed": r["seed"], "error": r["error"]} for r in results if "error" in r]
+        + [{"seed": r["seed"], "error": "auto: " + r["auto_error"]} for r in results if "auto_error" in r],
+    }
+
+
+def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
+        only: list[int] | None = None) -> dict[str, Any]:
+    tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
+    C.use_private_numba_cache(tmp.name)
+    seeds = list(only) if only else list(range(seed, seed + cases))
+    n_auto = len(seeds) if auto_cases is None else min(auto_cases, len(seeds))
+    jobs = [(s, auto and i < n_auto, tmp.name) for i, s in enumerate(seeds)]
+    workers = max(1, min(workers, MAX_WORKERS))
+    t0 = time.perf_counter()
+    try:
+        if workers == 1:
+            results = [_worker(j) for j in jobs]
+        else:
+            with mp.get_context("fork").Pool(workers, maxtasksperchild=20) as pool:
+                results = sorted(pool.imap_unordered(_worker, jobs, chunksize=1), key=lambda r: seeds.index(r["seed"]))
+    finally:
+        tmp.cleanup()
+    wall = time.perf_counter() - t0
+    for r in results:
+        r.pop("traceback", None) if "error" not in r and "auto_error" not in r else None
+    out: dict[str, Any] = {
+        "environment": C.environment(),
+        "settings": {"cases": len(seeds), "first_seed": seeds[0] if seeds else None, "workers": workers,
+                     "auto_cases": n_auto if auto else 0},
+        **summarize(results, auto),
+        "runtime": {"wall_s": wall, "per_case_median_s": statistics.median([r["seconds"] for r in results if "seconds" in r])
+                    if any("seconds" in r for r in results) else None,
+                    "diagnose_median_s": statistics.median([r["diagnose_s"] for r in results if "diagnose_s" in r])
+                    if any("diagnose_s" in r for r in results) else None,
+                    "auto_median_s": statistics.median([r["auto_s"] for r in results if "auto_s" in r])
+                    if any("auto_s" in r for r in results) else None},
+        "cases": results,
+    }
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description="randomized benchmark of hilbench diagnose (hidden effect found?)")
+    ap.add_argument("--cases", type=int, default=200, help="number of cases (seeds --seed ..)")
+    ap.add_argument("--seed", type=int, default=0, help="first case seed")
+    ap.add_argument("--workers", type=int, default=1, help=f"worker processes (at most {MAX_WORKERS})")
+    ap.add_argument("--auto", action="store_true", help="also run diagnose(..., auto=True)")
+    ap.add_argument("--auto-cases", type=int, default=None, help="with --auto: only the first N cases")
+    ap.add_argument("--only", type=int, nargs="*", help="these case seeds instead of a range")
+    ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
+    ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
+    ap.add_argument("--summarize", type=str, default=None,
+                    help="only summarise the cases of a --jsonl file (e.g. of a run still going)")
+    a = ap.parse_args(argv)
+    global _JSONL
+    _JSONL = a.jsonl
+    if a.summarize:
+        rows = [json.loads(x) for x in Path(a.summarize).read_text(encoding="utf-8").splitlines() if x.strip()]
+        rows.sort(key=lambda r: r["seed"])
+        print(json.dumps({**summarize(rows, any("auto_added" in r for r in rows)), "cases": rows}, indent=2, default=float))
+        return
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, a.only)
+    text = json.dumps(doc, indent=2, default=float)
+    if a.output:
+        Path(a.output).write_text(text, encoding="utf-8")
+    print(text)
+
+
+if __name__ == "__main__":
+    main()
