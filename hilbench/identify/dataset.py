@@ -206,7 +206,7 @@ class Dataset:
         keeps, notes = [], list(self.notes)
         for i, r in enumerate(runs):
             history_known = r.data.chain or r.data.approach_from is not None
-            kept, why = trim.keep(r.data.input, r.data.sample_rate_hz,
+            kept, why = trim.keep(r.data.input, r.data.output, r.data.sample_rate_hz,
                                   lambda selector, i=i: i in match_runs([selector], runs, "--exclude"), r.key,
                                   history_known=history_known)
             keeps.append(kept)
