@@ -220,7 +220,7 @@ def _read_bytes(path: Path, where: str) -> bytes:
     if suffix not in TEXT_SUFFIXES + MAT_SUFFIXES:
         raise DataError(
             f"unsupported file type {suffix or '(no extension)'!r} "
-            f"(expected {', '.join(TEXT_SUFFIXES + MAT_SUFFIXES)})",
+            f"(expected {', '.join(TEXT_SUFFIXES + MAT_SUFFIXES)}, or an aixACCT .dat export)",
             where=where,
         )
     try:
@@ -596,6 +596,48 @@ def load_source(
     )
 
 
+def is_aixacct_export(path: Path) -> bool:
+    """An aixACCT TF Analyzer text export: a ``.dat`` file with ``Table n`` data blocks."""
+    if path.suffix.lower() != ".dat" or not path.is_file():
+        return False
+    with open(path, encoding="latin-1", errors="replace") as f:
+        head = [f.readline() for _ in range(400)]
+    return any(line.strip().startswith("Table ") and line.strip()[6:].strip().isdigit() for line in head)
+
+
+def load_aixacct_runs(source: str | os.PathLike[str], *, label: str | None = None) -> list[ImportedRun]:
+    """One run per ``Table n`` block of an aixACCT export: input the drive voltage ``V+`` (V), output the
+    displacement ``D1`` (um), time from the block's start (s); every other column kept in its unit."""
+    from hilbench.recording.aixacct import load_aixacct_dat
+
+    path = Path(source)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"cannot read ({exc.strerror or exc.__class__.__name__})", where=str(source)) from exc
+    digest = _sha256(raw)
+    runs = []
+    for block in load_aixacct_dat(path):
+        t = np.asarray(block["time"], float)
+        if t.size < 2:
+            continue
+        rate = (t.size - 1) / (t[-1] - t[0])
+        name = f"{label or path.stem}-table{block['table']}"
+        data = {"time": t - t[0], "input": np.asarray(block["voltage"], float),
+                "output": np.asarray(block["displacement"], float)}
+        runs.append(ImportedRun(
+            source=path, label=name, data=data, units={"time": "s", "input": "V", "output": "um"},
+            descriptions={"time": "time from the block's start", "input": "drive voltage V+",
+                          "output": "displacement D1 (nm / 1000)"},
+            sample_rate_hz=float(rate), sha256=digest,
+            excitation={"kind": "imported", "source": path.name, "sha256": digest, "format": "aixacct-dat",
+                        "table": block["table"], "header": block["header"]},
+        ))
+    if not runs:
+        raise DataError("no data blocks (Table n) in the aixACCT export", where=str(source))
+    return runs
+
+
 # -- writing ---------------------------------------------------------------------------------
 
 
@@ -642,8 +684,11 @@ def import_files(
     with progress.task(f"import {len(sources)} file(s)", total=2 * len(sources)) as advance:
         for i, src in enumerate(sources):
             advance(0, f"import: reading {Path(src).name}")
-            runs.append(load_source(src, label=None if run_names is None else run_names[i], rate_hz=rate_hz,
-                                    mapping=mapping))
+            label = None if run_names is None else run_names[i]
+            if is_aixacct_export(Path(src)):
+                runs.extend(load_aixacct_runs(src, label=label))
+            else:
+                runs.append(load_source(src, label=label, rate_hz=rate_hz, mapping=mapping))
             advance(1)
         advance(0, f"import: writing {out.name}")
         return _write_runs(runs, out, experiment, advance)

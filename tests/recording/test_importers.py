@@ -508,3 +508,18 @@ def test_dspace_units_with_micro_normalised(tmp_path: Path, unit: str) -> None:
     scipy.io.savemat(src, {"cap": {"X": {"Data": np.arange(4.0) / 100}, "Y": y}})
     run = load_source(src, mapping={"Y(1)": "input", "Y(2)": "output"})
     assert run.units["output"] == "um" and run.units["input"] == "V"
+
+
+def test_an_aixacct_export_imports_one_run_per_table(tmp_path):
+    """The aixACCT TF Analyzer .dat export is reachable from `hilbench import` (one run per Table n)."""
+    from tests.conftest import require_real_data
+
+    source = require_real_data() / "pnzt-piezoceramic-aixacct" / "RMN_TRAP_1400V_1000V_CREEP.dat"
+    if not source.exists():
+        pytest.skip(f"{source} not found")
+    out = tmp_path / "creep.h5"
+    names = import_files([source], out)
+    assert [n.rsplit("-", 1)[1] for n in names] == ["table1", "table2", "table3", "table4"]
+    run = Recording(out).run(names[3])
+    assert run.units["input"] == "V" and run.units["output"] == "um" and run.n_samples == 5000
+    assert abs(run.data()["time"][-1] - 1400.3) < 1.0  # the 1400 s hold
