@@ -544,27 +544,68 @@ class Saturation(Component):
         return Columns.of(np.hstack(mats), names, lower=lower, hysteresis=True)
 
 
+#: elements of creep's fixed bank at most (form=bank): its columns, for a size estimate from the spec
+CREEP_BANK_MOST = 16
+
+
+def creep_bank_time_constants(duration_s: float, fs: float, per_decade: float = 3.0,
+                              most: int = CREEP_BANK_MOST) -> np.ndarray:
+    """The fixed Kelvin-Voigt bank of ``creep(form=bank)``: time constants (s) log-spaced from a few
+    samples (3 / fs) to the training record's length, ``per_decade`` of them per decade, at most
+    ``most`` (and at least 2). Fixed by the data's time span alone: nothing is searched."""
+    lo = 3.0 / fs
+    hi = max(float(duration_s), 10.0 * lo)
+    decades = math.log10(hi / lo)
+    n = int(min(most, max(2, math.ceil(per_decade * decades) + 1)))
+    return np.geomspace(lo, hi, n)
+
+
 class Creep(Component):
     """Kelvin-Voigt creep: the drift part lp_tau(x) - x of first-order low-passes.
 
-    form = input (default): of the input alone. form = output: of the input and of every hysteresis
-    column too, so the creep follows the hysteresis output h (lp(h) - h is linear in h's columns; the
-    copies carry their own weights, as the products of creep gains and operator weights). The output
-    form fits a plant whose creep acts after the hysteresis far better (0.052 -> 0.015 um on the
-    suite's creep case) but its copies overfit short or tail-heavy training data (aixACCT creep
-    records: 0.098 -> 0.167 um; a 2 s creep: 0.024 -> 0.027 um), so it is not the default; the
-    diagnosis chooses between the forms on an inner split of the training rows.
+    form = input (default): of the input alone, n elements with searched time constants.
+    form = output: of the input and of every hysteresis column too, so the creep follows the
+    hysteresis output h (lp(h) - h is linear in h's columns; the copies carry their own weights, as
+    the products of creep gains and operator weights). The output form fits a plant whose creep acts
+    after the hysteresis far better (0.052 -> 0.015 um on the suite's creep case) but its copies
+    overfit short or tail-heavy training data (aixACCT creep records: 0.098 -> 0.167 um; a 2 s creep:
+    0.024 -> 0.027 um), so it is not the default; the diagnosis chooses between the forms on an
+    inner split of the training rows.
+    form = bank: piezo creep spans decades (ms to hours, close to logarithmic in time), which two
+    fitted elements cannot follow. A fixed bank of elements log-spaced from 3 / fs to the training
+    record's length (:func:`creep_bank_time_constants`), nothing searched, weights >= 0: a
+    retardation spectrum sampled on a grid. A passive viscoelastic material's retardation spectrum
+    is non-negative (every Kelvin-Voigt compliance is > 0), so creep continues the strain in the
+    direction of the input change: with the drift columns lp(v) - v (-dv just after a step dv,
+    decaying to 0) that is a weight >= 0. The bound also keeps the fit of neighbouring, nearly
+    collinear elements well posed (no alternating-sign pairs); the weights stay exact (bounded
+    linear least squares). A logarithmic law gamma log10(1 + t / t0) is such a spectrum (flat per
+    decade between t0 and the record's length).
     """
 
     name = "creep"
     summary = "slow drift after input changes: Kelvin-Voigt elements on the input and the hysteresis output"
-    options_schema = {"n": Option("int", default=2, minimum=1, maximum=12, doc="Kelvin-Voigt elements (time constants searched)"),
-                      "form": Option("choice", default="input", choices=("input", "output"),
-                                     doc="input: creep of the input; output: of the hysteresis output too")}
+    FORMS = ("input", "output", "bank")
+    options_schema = {"n": Option("int", default=2, minimum=1, maximum=12,
+                                  doc="Kelvin-Voigt elements (time constants searched; form=input, output)"),
+                      "form": Option("choice", default="input", choices=FORMS,
+                                     doc="input: creep of the input; output: of the hysteresis output too; "
+                                     "bank: a fixed log-spaced bank from 3/fs to the record's length, weights >= 0"),
+                      "per_decade": Option("number", default=3.0, minimum=0.5, maximum=6.0,
+                                           doc="elements per decade of time (form=bank; 16 at most)")}
+
+    def _form(self) -> str:
+        return str(self.options.get("form", "input"))
 
     def prepare(self, s: Signals) -> None:
-        if str(self.options.get("form", "input")) not in ("output", "input"):
-            raise UserError(f"creep(form={self.options['form']}): expected form=input or form=output")
+        if self._form() not in self.FORMS:
+            raise UserError(f"creep(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
+        if self._form() == "bank":
+            if "taus" not in self.constants:
+                duration = s.u.shape[0] / s.fs
+                taus = creep_bank_time_constants(duration, s.fs, float(self.options.get("per_decade", 3.0)))
+                self.constants["taus"] = [float(t) for t in taus]
+            return
         if self.params:
             return
         n = int(self.options.get("n", 2))
@@ -574,30 +615,40 @@ class Creep(Component):
         self.params = [ShapeParam(f"tau_{k}", float(t), lo, hi, "s", log=True, doc="creep time constant")
                        for k, t in enumerate(starts)]
 
+    def time_constants(self) -> np.ndarray:
+        """The elements' time constants, s: the fixed bank's, or the searched ones."""
+        if self._form() == "bank":
+            return np.asarray(self.constants.get("taus", []), float)
+        return np.array([p.value for p in self.params], float)
+
     def new_state(self) -> dict[str, Any]:
-        return {"lp": np.zeros((len(self.params), 1)), "started": False, "lp_h": None}
+        return {"lp": np.zeros((self.time_constants().size, 1)), "started": False, "lp_h": None}
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         if not state["started"]:
             state["lp"][:, 0] = s.v[0]
             state["started"] = True
+        taus = self.time_constants()
+        v = np.ascontiguousarray(s.v)
         cols = []
-        for k, p in enumerate(self.params):
-            out = np.empty_like(s.v)
-            MK.lowpass_block(np.ascontiguousarray(s.v), 1.0 - math.exp(-1.0 / (s.fs * p.value)), state["lp"][k], out)
-            cols.append(out - s.v)  # the drift part: zero in steady state
-        names = [f"creep[tau={p.value:.3g}s]" for p in self.params]
-        if str(self.options.get("form", "input")) == "output":
+        for k, tau in enumerate(taus):
+            out = np.empty_like(v)
+            MK.lowpass_block(v, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp"][k], out)
+            cols.append(out - v)  # the drift part: zero in steady state
+        names = [f"creep[tau={t:.3g}s]" for t in taus]
+        if self._form() == "bank":  # creep in the direction of the input change (see the class doc)
+            return Columns.of(np.column_stack(cols), names, lower=0.0)
+        if self._form() == "output":
             hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
             if hyst:
                 x = np.ascontiguousarray(np.hstack([b.matrix[:, keep] for b, keep in hyst]))
                 if state["lp_h"] is None:  # start in steady state, as the input's low-pass does
-                    state["lp_h"] = np.repeat(x[:1], len(self.params), axis=0)
-                for k, p in enumerate(self.params):
+                    state["lp_h"] = np.repeat(x[:1], taus.size, axis=0)
+                for k, tau in enumerate(taus):
                     out = np.empty_like(x)
-                    MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * p.value)), state["lp_h"][k], out)
+                    MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
                     cols.append(out - x)
-                    names += [f"{b.names[j]}*creep[tau={p.value:.3g}s]" for b, keep in hyst for j in keep]
+                    names += [f"{b.names[j]}*creep[tau={tau:.3g}s]" for b, keep in hyst for j in keep]
         return Columns.of(np.column_stack(cols), names)
 
 

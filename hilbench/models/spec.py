@@ -219,8 +219,12 @@ def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]
             k = int(_opt(e, "order")) - 1
             cols, hyst = cols + k, hyst + k
         elif kind == "saturation":
-            k = 3 + (hyst if _opt(e, "form") == "output" else 0)
-            cols, hyst, shape = cols + k, hyst + k, shape + 1
+            k = 3 + (hyst if _opt(e, "form") in ("output", "knee") else 0)
+            cols, hyst, shape = cols + k, hyst + k, shape + (2 if _opt(e, "form") == "knee" else 1)
+        elif kind == "creep" and _opt(e, "form") == "bank":
+            from hilbench.models.components import CREEP_BANK_MOST
+
+            cols += CREEP_BANK_MOST  # a fixed bank: its time constants are not searched
         elif kind == "creep":
             n = int(_opt(e, "n"))
             cols, shape = cols + n + (n * hyst if _opt(e, "form") == "output" else 0), shape + n

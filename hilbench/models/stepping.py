@@ -248,7 +248,7 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     for i in range(H):
         h += X[row + i] * P[ow + i]
     nk = I[I_NK]
-    # -- creep: drift parts lp(x) - x of first-order low-passes ------------------------------------
+    # -- creep: drift parts lp(x) - x of first-order low-passes (searched elements or the fixed bank) --
     nc = I[I_NCREEP]
     if nc > 0:
         o_a = I[I_CREEP_A]
@@ -487,7 +487,7 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     # -- creep --------------------------------------------------------------------------------------------
     creep = model.effect("creep")
     if creep is not None:
-        taus = np.array([p.value for p in creep.params], float)
+        taus = creep.time_constants()  # searched (form=input, output) or the fixed bank (form=bank)
         nc = taus.size
         I[I_NCREEP] = nc
         I[I_CREEP_A] = f.put([1.0 - math.exp(-1.0 / (fs * t)) for t in taus])
