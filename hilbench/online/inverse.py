@@ -33,8 +33,15 @@ Kinds (chosen from the model spec by :class:`Compensator`, ``method="auto"``):
              when it fails, eq. 20's proportional gain ``k_e`` moves ``k_e u`` from the polynomial
              to the PI part (``gain="auto"`` picks one, a number sets it; ``gain=None`` refuses).
 ``fpmpi``    000's FPMPI: the one-sided play part is inverted analytically (it acts on the shaped
-             input ``x``), then the fractional polynomial ``x(v) = sum w_i sgn(v)|v|^e_i`` by a
-             safeguarded monotone solve.
+             input ``x``), then the fractional polynomial ``x(v) = sum w_i sgn(v)|v|^e_i`` is
+             solved. When the exponents are multiples of 1/q (000's are of 1/12), it is a
+             polynomial in ``s = sgn(v)|v|^(1/q)`` (multiplications only), solved by Newton steps
+             warm-started from the last solutions extrapolated (about 2 evaluations per sample;
+             counter ``newton_samples``); a step that leaves the command range or meets a falling
+             part of the polynomial hands the sample to the safeguarded solver below. The commit
+             then updates the static model's operators directly with that shaped input (checked
+             against ``model_step`` when the compensator is built), and an identifier with the
+             same front end reuses it.
 ``general``  ANY compiled model (creep, temperature, load and other aux channels, rate-dependence,
              saturation, Duhem, Bouc-Wen, ...): a bounded 1-D solve of ``model_step`` on a copy of
              the state per sample (safeguarded secant with bisection on the rising static map),
@@ -78,7 +85,7 @@ from numba import njit
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.models.stepping import model_step
-from hilbench.online.oiir import oiir_step
+from hilbench.online.oiir import oiir_step_shaped
 
 __all__ = [
     "Compensator",
@@ -129,7 +136,12 @@ CI_O_XFF = 20
 CI_M = 21  # OIIR numerator order M
 CI_N = 22  # OIIR denominator order N
 CI_BIAS = 23  # OIIR has a bias regressor
-N_CI = 24
+CI_NT = 24  # fpmpi fast path: terms of the fractional polynomial as a polynomial in t = |v|^(1/q) (0 = off)
+CI_O_TK = 25  # CI offset: their integer powers k = q e, ascending
+CI_O_TW = 26  # CP offset: their weights
+CI_FASTCOMMIT = 27  # 1: the fpmpi commit updates the static model's memory directly (no model_step)
+CI_FESHARED = 28  # 1: the identifier's front end has the model's fractional polynomial (and fast commit)
+N_CI = 29
 
 # -- CP: scalars ----------------------------------------------------------------------------------------
 C_US = 0  # model input scale (command units per normalised unit)
@@ -153,7 +165,11 @@ C_WARM = 17  # samples before the identified gain is used
 C_SLOPE0 = 18  # initial slope of the residual per command unit
 C_SMIN = 19  # smallest slope of the PI part (its first cumulative slope p0 + ...), um per unit
 C_PITOL = 20  # relative tolerance of the analytic inverse's check
-N_CP = 22
+C_TQ = 21  # fpmpi fast path: q of t = |v|^(1/q)
+C_TC0 = 22  # the polynomial's constant (the e = 0 terms)
+C_SLO = 23  # the command range in s = sgn(v) |v|^(1/q)
+C_SHI = 24
+N_CP = 26
 
 # -- CX: state --------------------------------------------------------------------------------------------
 S_U = 0  # last command (before the safety path), command units
@@ -175,7 +191,19 @@ S_FFSTART = 15
 S_HELD = 16  # non-finite references held
 S_YMOD = 17  # the static model's output at the last commit, um
 S_FIXED = 18  # samples where the analytic inverse was corrected by Newton steps
-N_CX = 20
+S_XP = 19  # fpmpi: the operators' input x at the last fast commit, for the input v = S_XP_V
+S_XP_V = 20
+S_XP_OK = 21  # 1 while S_XP is the model memory's (a fast commit wrote it; precondition clears it)
+S_SSOL = 22  # s, x and command of the last Newton solution
+S_XSOL = 23
+S_USOL = 24
+S_SPREV = 25  # s of the applied command S_SPREV_U, and of the two before: the Newton warm start
+S_SPREV_U = 26
+S_NEWTON = 27  # samples solved by the Newton fast path
+S_SPREV2 = 28
+S_SPREV3 = 29
+S_SHIST = 30  # how many of S_SPREV, S_SPREV2, S_SPREV3 are consecutive Newton solutions
+N_CX = 31
 
 
 @njit(cache=True, inline="always")
@@ -223,8 +251,9 @@ def _poly(CI: np.ndarray, CP: np.ndarray, v: float) -> float:
     return acc
 
 
-@njit(cache=True, _nrt=False)
-def _pi_inverse(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray, z: float) -> float:
+@njit(cache=True, inline="always", _nrt=False)
+def _pi_inverse(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
+                z: float) -> float:
     """The inverse PI (own thresholds and weights) at the target z of the play part, from the
     forward operators' current states; returns the operators' input x. Changes no state."""
     n = CI[CI_NOPS]
@@ -235,11 +264,17 @@ def _pi_inverse(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, P: np.ndarray, X:
     o_rh = CI[CI_O_RH]
     o_ph = CI[CI_O_PH]
     p0 = CP[C_P0]
-    # the operators' last input (virgin memory: 0, where the operators' states sit)
-    xp = _shaped(I, P, X[ST.X_V_PREV]) if X[ST.X_STARTED] != 0.0 else 0.0
-    y = p0 * xp
-    for j in range(n):
-        y += CP[o_p + j] * (X[o_ops + CI[o_perm + j]] - CP[o_c + j])
+    # the operators' last input (virgin memory: 0, where the operators' states sit) and the play
+    # part's value there; the fpmpi fast commit leaves both (its input x and the static model's
+    # output, which is the play part plus C_CONST), so neither is evaluated again
+    if X[ST.X_STARTED] != 0.0 and CX[S_XP_OK] != 0.0 and CX[S_XP_V] == X[ST.X_V_PREV]:
+        xp = CX[S_XP]
+        y = CX[S_YMOD] - CP[C_CONST]
+    else:
+        xp = _shaped(I, P, X[ST.X_V_PREV]) if X[ST.X_STARTED] != 0.0 else 0.0
+        y = p0 * xp
+        for j in range(n):
+            y += CP[o_p + j] * (X[o_ops + CI[o_perm + j]] - CP[o_c + j])
     x = CP[C_PH0] * z
     sp = 0.0
     spx = 0.0
@@ -255,7 +290,7 @@ def _pi_inverse(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, P: np.ndarray, X:
     return x
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
 def _pi_forward(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray, x: float,
                 out: np.ndarray) -> None:
     """The play part at input x from the current states (no state change): out = (value, slope)."""
@@ -283,21 +318,38 @@ def _pi_forward(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, P: np.ndarray, X:
     out[1] = slope
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, inline="always", _nrt=False)
+def _pi_value(CI: np.ndarray, CP: np.ndarray, I: np.ndarray, X: np.ndarray, x: float) -> float:
+    """The value of :func:`_pi_forward` (the same bits), branch-free: a clamp per operator."""
+    n = CI[CI_NOPS]
+    o_perm = CI[CI_PERM]
+    o_ops = I[ST.I_X_OPS]
+    o_p = CI[CI_O_P]
+    o_c = CI[CI_O_C]
+    o_s = CI[CI_O_S]
+    val = CP[C_P0] * x
+    for j in range(n):
+        s = CP[o_s + j]
+        w = X[o_ops + CI[o_perm + j]] - CP[o_c + j]
+        val += CP[o_p + j] * min(max(w, x - s), x + s)
+    return val
+
+
+@njit(cache=True, inline="always", _nrt=False)
 def _pi_inverse_checked(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray,
                         X: np.ndarray, z: float) -> float:
     """:func:`_pi_inverse`, checked against the forward operators; where the two disagree (operator
     states that no input history from a common start could produce, e.g. virgin M-play operators
     with different eta), Newton steps on the piecewise-linear forward map (bracketed) correct it."""
-    x = _pi_inverse(CI, CP, I, P, X, z)
-    o = CI[CI_O_XM] + CI[CI_NX]
-    buf = CX[o : o + 2]
-    _pi_forward(CI, CP, I, P, X, x, buf)
-    g = buf[0] - z
+    x = _pi_inverse(CI, CP, CX, I, P, X, z)
+    g = _pi_value(CI, CP, I, X, x) - z
     tol = CP[C_PITOL] * (abs(z) + 1.0)
     if abs(g) <= tol:
         return x
     CX[S_FIXED] += 1.0
+    o = CI[CI_O_XM] + CI[CI_NX]
+    buf = CX[o : o + 2]
+    _pi_forward(CI, CP, I, P, X, x, buf)
     smin = CP[C_SMIN]
     lo = x - abs(g) / smin
     hi = x + abs(g) / smin
@@ -405,6 +457,156 @@ def _solve(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.
     return x
 
 
+# -- fpmpi fast path: the fractional polynomial as a polynomial in t = |v|^(1/q) ------------------------
+#
+# The exponents of 000 eq. 5 (0, 1, 2, 1/2, 3, 1/3, 4, 1/4) are multiples of 1/12: with t = |v|^(1/12)
+# the polynomial is sum_k w_k t^k (k = 12 e), evaluated with multiplications only (no pow, no
+# sqrt), and so is its derivative. Newton's method in s = sgn(v) t, warm-started from the last
+# applied command's s, solves it in 1-3 evaluations per sample; whatever Newton cannot do (a step
+# out of the command range, a falling or flat part of the polynomial, no convergence in NEWTON_MAX
+# steps) goes to the safeguarded solver, which is exact for those cases.
+NEWTON_MAX = 6
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _ipow(t: float, n: int) -> float:
+    """t**n for an integer n >= 0 by squaring (multiplications only)."""
+    r = 1.0
+    b = t
+    while n > 0:
+        if n & 1:
+            r *= b
+        b *= b
+        n >>= 1
+    return r
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _tpoly(CI: np.ndarray, CP: np.ndarray, t: float) -> tuple[float, float, float]:
+    """(sum w_k t^k, sum k w_k t^k, sum k (k - 1) |w_k| t^k) over the terms with k > 0 (t >= 0): the
+    second over t is the derivative, the third over t^2 bounds the second derivative's size."""
+    nt = CI[CI_NT]
+    ok = CI[CI_O_TK]
+    ow = CI[CI_O_TW]
+    val = 0.0
+    der = 0.0
+    bound = 0.0
+    tp = 1.0
+    kp = 0
+    for j in range(nt):
+        k = CI[ok + j]
+        tp = tp * _ipow(t, k - kp)
+        kp = k
+        wt = CP[ow + j] * tp
+        val += wt
+        der += k * wt
+        bound += (k * (k - 1)) * abs(wt)
+    return val, der, bound
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _fpmpi_newton(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, xt: float) -> float:
+    """The command whose shaped input is xt by Newton steps in s (see above); NaN when the fast
+    path gives up (the caller then runs the safeguarded solver). Leaves s and x of the solution in
+    CX (S_SSOL, S_XSOL) for the commit and the next warm start.
+
+    Warm start: the last solutions extrapolated (quadratic over three consecutive ones, linear over
+    two). Stop: the residual within the solver's tolerance, or a Newton step whose remainder
+    ``|f(s + d) - xt| <= 1/2 max|f''| d^2`` is bounded below half of it (``k_max |d| <= t / 10``
+    bounds ``f''`` on the step by 1.106 times its bound at s); that last point is not evaluated
+    again, and its shaped input is taken as xt (within half the tolerance)."""
+    us = CP[C_US]
+    q = int(CP[C_TQ])
+    if CX[S_SPREV_U] == CX[S_UAPP]:
+        nh = CX[S_SHIST]
+        s1 = CX[S_SPREV]
+        if nh >= 3.0:
+            s = 3.0 * (s1 - CX[S_SPREV2]) + CX[S_SPREV3]
+        elif nh >= 2.0:
+            s = 2.0 * s1 - CX[S_SPREV2]
+        else:
+            s = s1
+    else:  # a command the fast path did not see (start, precondition, safety path)
+        v = CX[S_UAPP] / us
+        s = abs(v) ** (1.0 / q)
+        if v < 0.0:
+            s = -s
+    slo = CP[C_SLO]
+    shi = CP[C_SHI]
+    s = min(max(s, slo), shi)
+    c0 = CP[C_TC0]
+    tol = CP[C_TOLF] / us
+    kmax = CI[CI[CI_O_TK] + CI[CI_NT] - 1]
+    evals = 0
+    done = False
+    for _ in range(NEWTON_MAX):
+        t = abs(s)
+        val, der, bound = _tpoly(CI, CP, t)
+        evals += 1
+        f = (c0 + val if s >= 0.0 else c0 - val) - xt
+        if abs(f) <= tol:
+            CX[S_XSOL] = f + xt
+            done = True
+            break
+        if not (der > 0.0 and t > 0.0):
+            break
+        rd = f / der  # the step relative to t
+        sn = s - rd * t
+        if not (slo <= sn <= shi):
+            break
+        s = sn
+        if kmax * abs(rd) <= 0.1 and 0.553 * bound * rd * rd <= 0.5 * tol:
+            CX[S_XSOL] = xt
+            done = True
+            break
+    CX[S_EVALS] += evals
+    if not done:
+        return math.nan
+    CX[S_SSOL] = s
+    CX[S_NEWTON] += 1.0
+    CX[S_SAT] = 0.0
+    v = _ipow(abs(s), q)
+    return (v if s >= 0.0 else -v) * us
+
+
+@njit(cache=True, inline="always", _nrt=False)
+def _fpmpi_commit(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
+                  u: float) -> float:
+    """:func:`model_step` of the static fpmpi model (offset, fractional polynomial, operators; the
+    structure the constructor checked) for the applied command u, with the shaped input of the
+    Newton solution when u is that solution's command. Returns the model output, um."""
+    v = u / P[ST.P_USCALE]
+    if CX[S_USOL] == u:
+        x = CX[S_XSOL]
+        # the warm-start history: consecutive solutions only
+        continued = CX[S_SPREV_U] == CX[S_UAPP]
+        CX[S_SHIST] = min(CX[S_SHIST] + 1.0, 3.0) if continued else 1.0
+        CX[S_SPREV3] = CX[S_SPREV2]
+        CX[S_SPREV2] = CX[S_SPREV]
+        CX[S_SPREV] = CX[S_SSOL]
+        CX[S_SPREV_U] = u
+    else:
+        x = _shaped(I, P, v)
+        CX[S_SHIST] = 0.0
+    X[ST.X_V_PREV] = v
+    o_r = I[ST.I_R]
+    o_eta = I[ST.I_ETA]
+    o_ops = I[ST.I_X_OPS]
+    ow = I[ST.I_W]
+    h = P[ow]
+    for i in range(I[ST.I_NOPS]):
+        r = P[o_r + i]
+        w = min(x + P[o_eta + i] * r, X[o_ops + i])
+        w = max(x - r, w)
+        X[o_ops + i] = w
+        h += w * P[ow + 1 + i]
+    X[ST.X_STARTED] = 1.0
+    CX[S_XP] = x
+    CX[S_XP_V] = v
+    CX[S_XP_OK] = 1.0
+    return h
+
+
 @njit(cache=True, _nrt=False)
 def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
               y_d: float, aux: np.ndarray) -> float:
@@ -446,7 +648,12 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
             u = _pi_inverse_checked(CI, CP, CX, I, P, X, z) * us
         elif kind == K_FPMPI:
             xt = _pi_inverse_checked(CI, CP, CX, I, P, X, z)
-            u = _solve(CI, CP, CX, I, P, X, aux, xt, CX[S_UAPP])
+            u = _fpmpi_newton(CI, CP, CX, xt) if CI[CI_NT] > 0 else math.nan
+            if not math.isnan(u):
+                CX[S_USOL] = min(max(u, a), b)
+            else:
+                u = _solve(CI, CP, CX, I, P, X, aux, xt, CX[S_UAPP])
+                CX[S_USOL] = math.nan
         elif kind == K_IM:
             v = CX[S_VPREV]
             ke = CP[C_KE]
@@ -471,7 +678,10 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
     identifier and the feedback for the next sample (NaN: nothing measured)."""
     if not math.isfinite(u_applied):
         u_applied = CX[S_UAPP]
-    CX[S_YMOD] = model_step(I, P, X, u_applied, aux)
+    if CI[CI_FASTCOMMIT] != 0:
+        CX[S_YMOD] = _fpmpi_commit(CI, CP, CX, I, P, X, u_applied)
+    else:
+        CX[S_YMOD] = model_step(I, P, X, u_applied, aux)
     if u_applied != CX[S_U]:
         CX[S_SAT] = 1.0 if CX[S_U] > u_applied else -1.0
     if CX[S_SAT] != 0.0:
@@ -483,8 +693,10 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
         return
     CX[S_NOBS] += 1.0
     if CI[CI_ADAPT] != 0:
-        oiir_step(u_applied, y_meas, oa[0], oa[1], oa[2], oa[3], oa[4], oa[5], oa[6], oa[7], oa[8], oa[9],
-                  oa[10], oa[11], oa[12], oa[13], oa[14], oa[15], oa[16])
+        # the front end's shaped input: the commit's, when it is the same polynomial of the same u
+        x = CX[S_XP] if CI[CI_FESHARED] != 0 else math.nan
+        oiir_step_shaped(u_applied, x, y_meas, oa[0], oa[1], oa[2], oa[3], oa[4], oa[5], oa[6], oa[7], oa[8],
+                         oa[9], oa[10], oa[11], oa[12], oa[13], oa[14], oa[15], oa[16])
         theta = oa[12]
         m1 = CI[CI_M] + 1
         nq = CI[CI_N]
@@ -840,7 +1052,66 @@ class Compensator:
         self._nx_total = nx_total
         self.CP[C_SLOPE0] = self._slope0()
         self.CP[C_TOLF] = self._tol_f()
+        if kind == "fpmpi":
+            self._fast_fpmpi()
         self.reset()
+
+    def _fast_fpmpi(self) -> None:
+        """The fpmpi fast path (see :func:`_fpmpi_newton`): the exponents as multiples of 1/q (q <= 24,
+        powers <= 96), and the direct commit when the compiled static model is offset + fractional
+        polynomial + operators; each checked against the general path on a random walk over the
+        command range, and left off when it does not agree."""
+        I, P = self.I, self.P
+        nin = int(I[ST.I_NIN])
+        exps = P[I[ST.I_INEXP] : I[ST.I_INEXP] + nin]
+        w = P[I[ST.I_INW] : I[ST.I_INW] + nin]
+        q = next((q for q in range(1, 25)
+                  if np.all(np.abs(exps * q - np.round(exps * q)) <= 1e-9 * q) and np.all(exps >= 0)
+                  and np.max(np.round(exps * q), initial=0) <= 96), 0)
+        lo, hi = self.limits
+        us = float(self.CP[C_US])
+        rng = np.random.default_rng(0)
+        walk = np.clip(np.cumsum(rng.normal(0.0, 0.02 * (hi - lo), 400)) + 0.5 * (lo + hi), lo, hi)
+        if nin > 0 and q > 0:
+            k = np.round(exps * q).astype(np.int64)
+            powers = np.unique(k[k > 0])
+            weights = np.array([np.sum(w[k == p]) for p in powers])
+            self.CI[CI_NT] = powers.size
+            self.CI[CI_O_TK] = self.CI.size
+            self.CI[CI_O_TW] = self.CP.size
+            self.CI = np.concatenate([self.CI, powers])
+            self.CP = np.concatenate([self.CP, weights])
+            self.CP[C_TQ] = q
+            self.CP[C_TC0] = float(np.sum(w[k == 0]))
+            self.CP[C_SLO], self.CP[C_SHI] = (float(np.sign(b) * abs(b / us) ** (1.0 / q)) for b in (lo, hi))
+            s = np.sign(walk) * np.abs(walk / us) ** (1.0 / q)
+            fast = np.array([_tpoly_py(self.CI, self.CP, abs(x))[0] for x in s])
+            fast = self.CP[C_TC0] + np.sign(s) * fast
+            slow = np.array([_shaped(I, P, float(x / us)) for x in walk])
+            if not np.allclose(fast, slow, rtol=1e-12, atol=1e-12 * max(1.0, float(np.max(np.abs(slow))))):
+                self.CI[CI_NT] = 0
+        # the direct commit: the compiled static model must be offset + operators on the shaped input
+        structure_ok = (int(I[ST.I_BASE]) == 1 and int(I[ST.I_EXTRA]) == 0 and int(I[ST.I_ASYM]) == 0
+                        and int(I[ST.I_SAT]) == 0 and int(I[ST.I_NCREEP]) == 0 and int(I[ST.I_RATE]) == 0
+                        and int(I[ST.I_NAUX]) == 0 and int(I[ST.I_OFF]) == 0 and int(I[ST.I_DYN_ON]) == 0
+                        and int(I[ST.I_DELAY]) == 0 and int(I[ST.I_H]) == 1 + int(I[ST.I_NOPS]))
+        if structure_ok and not self.channels:
+            self.CI[CI_FASTCOMMIT] = 1
+            X_fast, X_slow = np.zeros_like(self.X), np.zeros_like(self.X)
+            CX = np.zeros(self._nx_total)
+            aux = np.zeros(1)
+            for u in walk:
+                CX[S_USOL] = math.nan
+                y_fast = _fpmpi_commit(self.CI, self.CP, CX, I, P, X_fast, float(u))
+                y_slow = _model_step_py(I, P, X_slow, float(u), aux)
+                if not abs(y_fast - y_slow) <= 1e-10 * (1.0 + abs(y_slow)):
+                    self.CI[CI_FASTCOMMIT] = 0
+                    break
+        fe = self.oiir.front_end if self.oiir is not None else None
+        if (fe is not None and self.CI[CI_FASTCOMMIT] != 0 and fe.exps.shape == exps.shape
+                and np.array_equal(fe.exps, exps) and np.array_equal(fe.w_p, w)
+                and fe.fe[0] == P[ST.P_USCALE]):
+            self.CI[CI_FESHARED] = 1
 
     # -- checks -------------------------------------------------------------------------------------
     def _check_eq16(self, p0: float, poly: np.ndarray, us: float, gain: float | str | None, kind: str) -> float:
@@ -993,6 +1264,7 @@ class Compensator:
             return
         out = np.empty_like(u)
         ST.model_block(self.I, self.P, self.X, u, self.aux_matrix(aux, u.shape[0]), out)
+        self.CX[S_XP_OK] = 0.0  # the model's memory moved without the fast commit
         self.CX[S_U] = self.CX[S_UAPP] = float(u[-1])
         self.CX[S_VPREV] = float(u[-1]) / self.CP[C_US]
 
@@ -1016,7 +1288,7 @@ class Compensator:
     def counters(self) -> dict[str, Any]:
         return {"samples": int(self.CX[S_NOBS]), "solver_evaluations": int(self.CX[S_EVALS]),
                 "limited_samples": int(self.CX[S_SATN]), "references_held": int(self.CX[S_HELD]),
-                "analytic_inverse_corrected": int(self.CX[S_FIXED]),
+                "analytic_inverse_corrected": int(self.CX[S_FIXED]), "newton_samples": int(self.CX[S_NEWTON]),
                 "gain": float(self.CX[S_GAIN]), "offset_um": float(self.CX[S_BIAS])}
 
     def describe(self) -> dict[str, Any]:
@@ -1030,6 +1302,11 @@ class Compensator:
         if self.oiir is not None:
             doc["online"] = {"M": self.oiir.M, "N": self.oiir.N, "bias": self.oiir.bias}
         return doc
+
+
+@njit(cache=True, _nrt=False)
+def _tpoly_py(CI: np.ndarray, CP: np.ndarray, t: float) -> tuple[float, float, float]:
+    return _tpoly(CI, CP, t)
 
 
 @njit(cache=True, _nrt=False)

@@ -49,9 +49,8 @@ import numpy as np
 from numba import njit
 
 from hilbench.online import rls as R
-from hilbench.sim.kernels import mplay_block
 
-__all__ = ["OIIR", "FPMPIFrontEnd", "oiir_step", "oiir_block", "re_n2_pct", "re_ninf_pct", "persistence",
+__all__ = ["OIIR", "FPMPIFrontEnd", "oiir_step", "oiir_step_shaped", "oiir_block", "re_n2_pct", "re_ninf_pct", "persistence",
            "offline_hammerstein", "OFFLINE_SPEC"]
 
 # -- front-end scalar parameters (fe) -----------------------------------------------------------
@@ -96,25 +95,44 @@ def _sgnpow(x: float, e: float) -> float:
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def fpmpi_shape(u: float, fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray) -> float:
+    """The front end's shaped input x = sum_i w_P,i sgn(v)|v|^e_i, v = u / u_scale (000 eq. 4-5)."""
+    v = u / fe[F_U_SCALE]
+    x = 0.0
+    for i in range(exps.shape[0]):
+        x += w_p[i] * _sgnpow(v, exps[i])
+    return x
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def fpmpi_operators(
+    x: float, fe: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray, ops: np.ndarray, xbuf: np.ndarray,
+    opbuf: np.ndarray,
+) -> float:
+    """The front end's operators on the shaped input x: u_r; operator states ``ops`` updated. The
+    arithmetic of ``hilbench.sim.kernels.mplay_block`` on a one-sample block, written out here so
+    that it inlines (a call per sample costs more than the ten operators)."""
+    xbuf[0] = x
+    ur = fe[F_OFFSET]
+    for i in range(r.shape[0]):
+        w = min(x + eta[i] * r[i], ops[i])
+        w = max(x - r[i], w)
+        ops[i] = w
+        opbuf[0, i] = w
+        ur += w_h[i] * w
+    return ur
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def fpmpi_step(
     u: float, fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
     ops: np.ndarray, xbuf: np.ndarray, opbuf: np.ndarray,
 ) -> float:
     """FPMPI output u_r for one input sample u (command units); operator states ``ops`` updated.
 
-    ``xbuf`` (1,) and ``opbuf`` (1, n_ops) are work buffers: the operators are the shared
-    ``mplay_block`` kernel run on a one-sample block.
+    ``xbuf`` (1,) and ``opbuf`` (1, n_ops) receive the shaped input and the operator outputs.
     """
-    v = u / fe[F_U_SCALE]
-    x = 0.0
-    for i in range(exps.shape[0]):
-        x += w_p[i] * _sgnpow(v, exps[i])
-    xbuf[0] = x
-    mplay_block(xbuf, r, eta, ops, opbuf)
-    ur = fe[F_OFFSET]
-    for i in range(r.shape[0]):
-        ur += w_h[i] * opbuf[0, i]
-    return ur
+    return fpmpi_operators(fpmpi_shape(u, fe, exps, w_p), fe, r, eta, w_h, ops, xbuf, opbuf)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -125,11 +143,28 @@ def oiir_step(
     theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray,
 ) -> float:
     """One sample of the identifier: returns the online model output y_m(k) (a-priori), um."""
+    return oiir_step_shaped(u, math.nan, y, fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf, dims, xs, phi, theta, P,
+                            g, cfg, st)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def oiir_step_shaped(
+    u: float, x: float, y: float,
+    fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
+    ops: np.ndarray, xbuf: np.ndarray, opbuf: np.ndarray, dims: np.ndarray, xs: np.ndarray, phi: np.ndarray,
+    theta: np.ndarray, P: np.ndarray, g: np.ndarray, cfg: np.ndarray, st: np.ndarray,
+) -> float:
+    """:func:`oiir_step` with the front end's shaped input x of u given (NaN: computed here). For a
+    caller that has already evaluated the same fractional polynomial at u (the fpmpi compensator
+    of the same model); x must be that polynomial's value at this u, to rounding."""
     if not math.isfinite(u):
         u = xs[X_U_PREV]
         xs[X_INPUT_HELD] += 1.0
+        x = math.nan
     xs[X_U_PREV] = u
-    ur = fpmpi_step(u, fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf)
+    if math.isnan(x):
+        x = fpmpi_shape(u, fe, exps, w_p)
+    ur = fpmpi_operators(x, fe, r, eta, w_h, ops, xbuf, opbuf)
     m1 = dims[D_M] + 1
     nd = dims[D_N]
     if xs[X_STARTED] == 0.0:
@@ -166,7 +201,7 @@ def oiir_step(
     return y_m
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def oiir_block(
     u: np.ndarray, y: np.ndarray,
     fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray, r: np.ndarray, eta: np.ndarray, w_h: np.ndarray,
@@ -258,7 +293,7 @@ class FPMPIFrontEnd:
         return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", _nrt=False)
 def _fpmpi_block(u, fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf, out) -> None:
     for k in range(u.shape[0]):
         out[k] = fpmpi_step(u[k], fe, exps, w_p, r, eta, w_h, ops, xbuf, opbuf)

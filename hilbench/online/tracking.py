@@ -7,7 +7,8 @@ clamp to ``[min, max]``, slew limit ``max_rate / fs``), the plant
 (:func:`hilbench.sim.kernels.plant_step_flat`) and the commit of the applied command and the
 measurement (:func:`hilbench.online.inverse.comp_update`: model memory, PID, OIIR identifier). It
 is compiled with ``_nrt=False`` (it allocates nothing; see :mod:`hilbench.models.stepping`), so the
-inlined steps pay no reference counting. The loop runs in lock-step, so its ``lateness`` channel is 0;
+inlined steps pay no reference counting; the compensator's step and commit (with the identifier)
+are inlined too, so no per-sample call copies their ~30 array arguments. The loop runs in lock-step, so its ``lateness`` channel is 0;
 a real rig is driven sample by sample from Python (:meth:`Rig.apply` and :meth:`Rig.measure`) and
 the lateness of each sample against the fixed-rate schedule is recorded.
 
@@ -41,6 +42,12 @@ from hilbench.sim import kernels as K
 __all__ = ["track", "TrackResult", "closed_loop_block", "loop_step", "reference_signal", "SimulatedLoop"]
 
 
+# The compensator's step and commit inlined into the fused loop: called, each would copy its array
+# arguments (the identifier's 17 arrays: ~1 kB) per sample.
+_comp_step = njit(cache=True, inline="always", _nrt=False)(comp_step.py_func)
+_comp_update = njit(cache=True, inline="always", _nrt=False)(comp_update.py_func)
+
+
 @njit(cache=True, inline="always", _nrt=False)
 def _safety(x: float, lo: float, hi: float, max_step: float, last: np.ndarray) -> float:
     """:func:`hilbench.rig.safety.command_path` for one sample (the same arithmetic)."""
@@ -62,10 +69,10 @@ def loop_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
     ``lims`` = (lo, hi, max_step); ``last`` (1,) the last applied command (the rig's safety state);
     ``B`` the plant's per-sample noise/temperature/load, column ``pos``; ``rec`` receives
     (command, applied)."""
-    u = comp_step(CI, CP, CX, I, P, X, r, aux)
+    u = _comp_step(CI, CP, CX, I, P, X, r, aux)
     c = _safety(u, lims[0], lims[1], lims[2], last)
     y = K.plant_step_flat(F, L, B, pos, c)
-    comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux)
+    _comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux)
     rec[0] = u
     rec[1] = c
     return y
@@ -84,12 +91,12 @@ def closed_loop_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndar
     ms = lims[2]
     for k in range(ref.shape[0]):
         r = ref[k]
-        u = comp_step(CI, CP, CX, I, P, X, r, aux[k])
+        u = _comp_step(CI, CP, CX, I, P, X, r, aux[k])
         c = _safety(u, lo, hi, ms, last)
         if c != u:
             changed += 1
         y = K.plant_step_flat(F, L, B, k, c)
-        comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux[k])
+        _comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux[k])
         out_cmd[k] = u
         out_applied[k] = c
         out_y[k] = y
