@@ -54,6 +54,26 @@ def range_text(value: Any) -> str:
     return str(value)
 
 
+def failed_text(candidate: dict[str, Any]) -> str:
+    """What a candidate's line adds about its failed checks: the first one's sentence when the
+    explanation does not end with it already, and the others by name with measured vs required."""
+    failed = (candidate.get("evidence") or {}).get("failed_checks") or []
+    if candidate.get("significant") or not failed:
+        return ""
+    first = failed[0]
+    out = "" if candidate["explanation"].endswith(first["text"]) else f"; not significant: {first['text']}"
+    if len(failed) > 1:
+        out += " (also failed: " + ", ".join(f"{f['check']} {_measured(f['measured'])} vs {f['required']}"
+                                             for f in failed[1:]) + ")"
+    return out
+
+
+def _measured(value: Any) -> str:
+    if isinstance(value, dict):
+        return "/".join(_measured(v) for v in value.values())
+    return f"{value:.3g}" if isinstance(value, (int, float)) else str(value)
+
+
 def diagnosis_lines(d: dict[str, Any]) -> list[str]:
     """Human summary of a diagnosis document (the --json one)."""
     val = d["metrics"]["validation"]
@@ -69,7 +89,8 @@ def diagnosis_lines(d: dict[str, Any]) -> list[str]:
     lines.append("effects (best first):")
     for e in d["effects"]:
         mark = "significant" if e["significant"] else "not significant"
-        lines.append(f"  {e['effect']:<16s} {mark:<16s} expected gain {100 * e['expected_gain']:6.1f} %  {e['explanation']}")
+        lines.append(f"  {e['effect']:<16s} {mark:<16s} expected gain {100 * e['expected_gain']:6.1f} %  "
+                     f"{e['explanation']}{failed_text(e)}")
     if not d["effects"]:
         lines.append("  none testable")
     for u in d["untestable"]:

@@ -20,8 +20,10 @@
   judges and ranks them by the measured fractional drop of validation rmse (``expected_gain``; a tie
   is decided by the residual's pattern, :mod:`hilbench.diagnosis.verdict`), and lists the effects the
   data cannot test with the reason;
-* with ``add`` refits with that effect, with ``auto`` adds the best significant effect while one
-  remains (``steps``).
+* when no single effect carries over but some explained training, judges pairs of them together
+  (candidate ``a+b``, :mod:`hilbench.diagnosis.pairs`): creep after each load step;
+* with ``add`` refits with that effect, with ``auto`` adds the best significant effect (or pair)
+  while one remains (``steps``).
 
 Units: input in the command unit (V or A), errors in the output unit, rates in input units per s,
 times in s, gains as fractions.
@@ -35,6 +37,7 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis.base_check import wrong_base
+from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
@@ -81,7 +84,7 @@ class Diagnosis:
 
 def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
     rows = residual_rows(base)
-    noise = noise_floor(rows.e, rows.run)
+    noise = noise_floor(rows)  # the sensor's, from the measured output (diagnosis/noise.py)
     plan = testable(base.spec, base)
     every = residual_rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
     cands = []
@@ -90,7 +93,8 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
             advance(0, f"diagnose {base.spec}: trying {eff}")
             cands.append(judge(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None))
             advance(1)
-    other_base = wrong_base(paths, base, kw, noise)
+    cands += pair_candidates(paths, base, cands, every, noise, kw)  # overlapping effects, judged together
+    other_base = wrong_base(paths, base, kw, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
         cands.append(other_base)
     rank(cands)

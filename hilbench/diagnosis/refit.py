@@ -13,11 +13,16 @@ the diagnosis chooses among them (``form_choice``):
 
 With a rate plan (one training rate, several validation rates) the effect's shape is calibrated
 across drive rates first and fixed (:mod:`hilbench.diagnosis.rate_calibration`).
+
+A joint candidate (two effects that act together, :mod:`hilbench.diagnosis.pairs`) is written as
+its parts joined by ``+``, each in the form its single fit chose (``creep(form=output)+load``); it
+is fitted as written, with no choice of form.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -43,8 +48,46 @@ def spec_with(spec: str, effect: str) -> str:
     return f"{spec}+{effect}"
 
 
+def spec_parts(spec: str) -> list[str]:
+    """``"pi(n=8)+creep(form=output)+load"`` -> its parts, split at the ``+`` outside parentheses."""
+    parts, depth, current = [], 0, ""
+    for ch in spec:
+        depth += (ch == "(") - (ch == ")")
+        if ch == "+" and depth == 0:
+            parts.append(current.strip())
+            current = ""
+        else:
+            current += ch
+    return [*parts, current.strip()]
+
+
+def spec_with_all(spec: str, effects: Sequence[str]) -> str:
+    """``spec`` plus every one of ``effects`` (:func:`spec_with` in turn)."""
+    for effect in effects:
+        spec = spec_with(spec, effect)
+    return spec
+
+
+def added_parts(base_spec: str, spec: str, effect: str) -> list[str]:
+    """What ``spec``, a refit of ``base_spec`` with ``effect``, adds: the effect in the form its fit
+    chose (``creep(form=output)``, ``delay(seconds=0.004)``); ``effect`` itself when it replaced the
+    base (``hysteresis`` on ``linear``)."""
+    old, new = spec_parts(base_spec), spec_parts(spec)
+    if new[0] != old[0]:
+        return [effect]
+    return [p for p in new[1:] if p not in old[1:]] or [effect]
+
+
+def is_joint(effect: str) -> bool:
+    """Whether ``effect`` names several effects fitted together (``creep+load``)."""
+    return len(spec_parts(effect)) > 1
+
+
 def effect_specs(spec: str, effect: str) -> list[str]:
-    """The specs a candidate effect is tried as: one per form of its registry entry."""
+    """The specs a candidate effect is tried as: one per form of its registry entry; a joint
+    candidate as written."""
+    if is_joint(effect):
+        return [spec_with_all(spec, spec_parts(effect))]
     return [spec_with(spec, part) for part in E.effect(effect).spec_parts()] if effect in E.EFFECTS \
         else [spec_with(spec, effect)]
 
@@ -77,7 +120,10 @@ def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -
 
 
 def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:
-    """``base`` refitted with ``effect`` on the user's split, in the form the data choose."""
+    """``base`` refitted with ``effect`` on the user's split, in the form the data choose (a joint
+    candidate in the forms it names)."""
+    if is_joint(effect):
+        return fit(paths, effect_specs(base.spec, effect)[0], **kw)
     if plan is not None:
         spec, _ = calibrated_spec(paths, base.spec, effect, plan)
         return fit(paths, spec, **kw)

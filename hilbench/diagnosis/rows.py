@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hilbench.diagnosis.input_motion import motion
+from hilbench.diagnosis.noise import residual_noise_floor, sensor_noise
 from hilbench.errors import UserError
 from hilbench.identify.fitting import FitResult
-from hilbench.identify.statistics import difference_noise_std
 
 
 @dataclass
@@ -80,9 +80,15 @@ def residual_rows(result: FitResult, rows: str = "validation") -> ResidualRows:
     return ResidualRows(**cat, aux={c: np.concatenate(v) for c, v in aux.items()}, keys=keys)
 
 
-def noise_floor(e: np.ndarray, run: np.ndarray) -> float:
-    """Noise std from sample-to-sample differences of the residual (robust: MAD), output unit."""
-    d = np.concatenate([np.diff(e[run == k]) for k in np.unique(run)])
-    if d.size < 3:
-        return 0.0
-    return difference_noise_std(d)
+def noise_floor(rows: ResidualRows | np.ndarray, run: np.ndarray | None = None) -> float:
+    """The sensor's noise floor, output unit: on residual ``rows``, estimated from the measured output
+    itself (:func:`hilbench.diagnosis.noise.sensor_noise`, a :class:`~hilbench.diagnosis.noise.NoiseFloor`
+    whose ``estimates`` also hold the old residual-based one under ``"residual"``).
+
+    ``noise_floor(e, run)`` on bare arrays is that old estimate: the robust std of the residual's
+    sample-to-sample differences, which fast model error inflates (kept for comparison)."""
+    if not isinstance(rows, ResidualRows):
+        return residual_noise_floor(np.asarray(rows), np.asarray(run))
+    floor = sensor_noise(rows.y, rows.run, rows.t, rows.direction == "hold", rows.since)
+    floor.estimates["residual"] = residual_noise_floor(rows.e, rows.run)
+    return floor

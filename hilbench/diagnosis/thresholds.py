@@ -19,8 +19,18 @@ P_MAX = 0.01
 N_BLOCKS = 20
 
 #: The current validation rmse must exceed this multiple of the noise floor: an error at the
-#: sensor's noise has nothing left to explain.
+#: sensor's noise has nothing left to explain. The floor is the sensor's, estimated from the measured
+#: output (hilbench/diagnosis/noise.py), not from the model's residual, which fast model error inflates.
 NOISE_FACTOR = 1.5
+
+#: A noise estimate counts only when it rests on this many samples: the robust std of n samples
+#: scatters by ~1.2/sqrt(n) (8 % at 200), and the floor is the smallest estimate, which scatter biases low.
+NOISE_MIN_SAMPLES = 200
+#: Difference orders of the noise estimate: order k cancels polynomials of degree < k; higher orders
+#: amplify fast signal content (2 sin(pi f / fs))^k more than they cancel trends.
+NOISE_DIFFERENCE_ORDERS = (1, 2, 3, 4)
+#: Holds count for the noise estimate after this time: a delay or a resonance settles first.
+NOISE_HOLD_SETTLE_S = 0.1
 
 #: A real effect is learned on one set of rows and holds on unseen rows: the validation gain must be
 #: at least this fraction of the training gain (else: more parameters, not physics) ...
@@ -62,3 +72,11 @@ WRONG_BASE_NOISE_FACTOR = 10.0
 #: Another base is suggested when it lowers the validation rmse by this factor: effects on a
 #: base of the right family give tens of percent; a wrong loop shape costs multiples.
 WRONG_BASE_RATIO = 2.0
+
+#: Effects that overlap (creep after each load step) are tried in pairs when no single effect is
+#: significant or the best one lowers the validation rmse by less than this fraction (it leaves most
+#: of the error) ...
+PAIR_TRIGGER_GAIN = 0.5
+#: ... among the singles with the best gains (training or validation; one of each pair over MIN_GAIN in
+#: training): the top PAIR_MAX_MEMBERS (3 members, at most 3 pairs), so pairs cost at most three refits.
+PAIR_MAX_MEMBERS = 3

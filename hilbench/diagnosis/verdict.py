@@ -6,10 +6,15 @@ extrapolation), (c) a one-sided Wilcoxon signed-rank test on the per-block squar
 differences of N_BLOCKS contiguous validation blocks gives p < P_MAX, (d) the current validation
 error is above NOISE_FACTOR times the noise floor, and (e) the effect's evidence check, if its
 registry entry names one, holds. Thresholds: :mod:`hilbench.diagnosis.thresholds`.
+
+Every verdict gives its reason: ``evidence["failed_checks"]`` of :meth:`Candidate.to_json` lists each failed check with what was
+measured, what was required and a sentence (:func:`failed_checks`), and the explanation of a
+candidate that is not significant ends with the first failed check's sentence.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,10 +40,24 @@ class Candidate:
     explanation: str
     evidence: dict[str, Any]
     fitted: FitResult | None = field(default=None, repr=False)  # the refit, reused by --auto
+    unit: str = field(default="", repr=False)  # the output's unit, for the reasons' text
+
+    def failed_checks(self) -> list[dict[str, Any]]:
+        """Why the verdict is what it is: :func:`failed_checks` of the checks as they stand now (a
+        caller may add checks after judging, e.g. a pair's)."""
+        return failed_checks(self.evidence, self.unit)
+
+    def reasoned_explanation(self) -> str:
+        """The explanation; when not significant, ending with the first failed check's sentence."""
+        failed = self.failed_checks()
+        if self.significant or not failed or self.explanation.endswith(failed[0]["text"]):
+            return self.explanation
+        return f"{self.explanation}; not significant: {failed[0]['text']}"
 
     def to_json(self) -> dict[str, Any]:
         return {"effect": self.effect, "significant": self.significant, "expected_gain": self.expected_gain,
-                "explanation": self.explanation, "evidence": self.evidence}
+                "explanation": self.reasoned_explanation(),
+                "evidence": {**self.evidence, "failed_checks": self.failed_checks()}}
 
 
 def validation_errors(result: FitResult, keys: Sequence[str] | None = None) -> np.ndarray:
@@ -65,6 +84,101 @@ def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = T.N_BLOCKS)
         return 1.0, int(np.sum(d > 0)), int(d.size)
     p = float(stats.wilcoxon(d, alternative="greater", zero_method="zsplit").pvalue)
     return p, int(np.sum(d > 0)), int(d.size)
+
+
+def _pct(x: float) -> str:
+    return f"{100 * abs(x):.2g} %"
+
+
+def _change(name: str, gain: float) -> str:
+    """'validation rmse fell 6.2 %' / 'rose 3 %' for a relative gain (a fraction, > 0 = lower error)."""
+    if not math.isfinite(gain):
+        return f"{name} rmse could not be compared"
+    if abs(gain) < 5e-5:
+        return f"{name} rmse did not change"
+    return f"{name} rmse {'fell' if gain > 0 else 'rose'} {_pct(gain)}"
+
+
+def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]:
+    """Why check ``key`` failed, from a verdict's evidence: ``{"check", "measured", "required",
+    "text"}``. ``measured`` is a number (or a dict of numbers), ``required`` the condition on it as
+    text; gains are fractions of the rmse (> 0: lower error)."""
+    u = f" {unit}" if unit else ""
+    old_v, new_v = (ev.get("confirmation_rmse") or ev.get("validation_rmse") or [math.nan, math.nan])[:2]
+    gain = relative_gain(old_v, new_v)
+    if key == "gain_over_10pct":
+        where = "validation at the confirming rates" if "confirmation_rmse" in ev else "validation"
+        return {"check": key, "measured": gain, "required": f"> {T.MIN_GAIN:g}",
+                "text": f"{_change(where, gain)}, less than the {100 * T.MIN_GAIN:g} % required"}
+    if key in ("train_and_validation_agree", "calibration_and_confirmation_agree"):
+        calibrated = key.startswith("calibration")
+        first, second = ("calibration", "confirmation") if calibrated else ("training", "validation")
+        pair = ev.get("calibration_rmse") if calibrated else ev.get("train_rmse")
+        learned = relative_gain(*pair[:2]) if pair else math.nan
+        measured = {f"{first}_gain": learned, f"{second}_gain": gain}
+        required = (f"{first}_gain > 0, {second}_gain >= {T.AGREE_VALIDATION_OVER_TRAIN:g} x {first}_gain, "
+                    f"{first}_gain >= {T.AGREE_TRAIN_OVER_VALIDATION:g} x {second}_gain")
+        if not learned > 0:
+            text = f"{_change(first, learned)} while {_change(second, gain)}: a gain on {second} only is chance"
+        elif gain < T.AGREE_VALIDATION_OVER_TRAIN * learned:
+            text = (f"{_change(second, gain)} against {_pct(learned)} on {first}, less than the "
+                    f"{T.AGREE_VALIDATION_OVER_TRAIN:g}x of it required: more parameters, not physics")
+        else:
+            text = (f"{_change(first, learned)} against {_pct(gain)} on {second}, less than the "
+                    f"{T.AGREE_TRAIN_OVER_VALIDATION:g}x of it required: chance extrapolation")
+        return {"check": key, "measured": measured, "required": required, "text": text}
+    if key == "blocks_p_below_0.01":
+        p = float(ev.get("p_value", math.nan))
+        better, blocks = (ev.get("blocks_improved") or [0, 0])[:2]
+        return {"check": key, "measured": p, "required": f"< {T.P_MAX:g}",
+                "text": f"the block test gives p = {p:.2g} ({better} of {blocks} validation blocks improved), "
+                        f"not below the {T.P_MAX:g} required"}
+    if key == "error_above_noise":
+        noise = float(ev.get("noise_floor", math.nan))
+        ratio = old_v / noise if noise > 0 else math.inf
+        return {"check": key, "measured": ratio, "required": f"> {T.NOISE_FACTOR:g}",
+                "text": f"the current error ({old_v:.3g}{u} rms) is {ratio:.2g}x the sensor noise floor "
+                        f"({noise:.3g}{u}), not above the {T.NOISE_FACTOR:g}x required: nothing left to explain"}
+    if key == "training_not_worse":
+        old_t, new_t = (ev.get("train_rmse") or [math.nan, math.nan])[:2]
+        worse = new_t / old_t - 1.0 if old_t > 0 else math.nan
+        return {"check": key, "measured": worse, "required": f"<= {T.TRAINING_WORSE_TOLERANCE:g}",
+                "text": f"training rmse rose {_pct(worse)} with the calibrated shape, more than the "
+                        f"{100 * T.TRAINING_WORSE_TOLERANCE:g} % allowed"}
+    if key == "drift_on_holds":
+        drift = float(ev.get("drift_over_rms", math.nan))
+        if not math.isfinite(drift):  # carried over from a member's verdict (a pair)
+            return {"check": key, "measured": None, "required": f">= {T.CREEP_MIN_DRIFT:g}",
+                    "text": "the residual does not drift along holds as creep's signature needs"}
+        return {"check": key, "measured": drift, "required": f">= {T.CREEP_MIN_DRIFT:g}",
+                "text": f"the residual drifts along holds by {drift:.2g}x its rms, less than the "
+                        f"{T.CREEP_MIN_DRIFT:g}x creep's signature needs"}
+    if key.startswith("validation_") and key.endswith("x_lower"):  # the wrong-base check
+        ratio = old_v / new_v if new_v > 0 else math.inf
+        return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
+                "text": f"the other base lowers the validation rmse {ratio:.2g}x, less than the "
+                        f"{T.WRONG_BASE_RATIO:g}x required"}
+    if key.endswith("x_lower_than_any_effect") and "best_effect_rmse" in ev:  # the wrong-base check
+        best = float(ev["best_effect_rmse"])
+        ratio = best / new_v if new_v > 0 else math.inf
+        return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
+                "text": f"the best single effect's validation rmse ({best:.3g}{u}) is {ratio:.2g}x the other base's "
+                        f"({new_v:.3g}{u}), less than the {T.WRONG_BASE_RATIO:g}x required"}
+    if key == "pair_over_each_single" and "gain_over_best_single" in ev:  # a pair of effects
+        over = float(ev["gain_over_best_single"])
+        return {"check": key, "measured": over, "required": f"> {T.MIN_GAIN:g}",
+                "text": f"the pair's validation rmse is {_pct(over)} {'below' if over > 0 else 'above'} the best single "
+                        f"effect's, less than the {100 * T.MIN_GAIN:g} % required"}
+    if key == "training_lower_too":
+        old_t, new_t = (ev.get("train_rmse") or [math.nan, math.nan])[:2]
+        g = relative_gain(old_t, new_t)
+        return {"check": key, "measured": g, "required": "> 0", "text": f"{_change('training', g)}, where it must fall"}
+    return {"check": key, "measured": None, "required": "true", "text": f"the check {key} does not hold"}
+
+
+def failed_checks(ev: dict[str, Any], unit: str = "") -> list[dict[str, Any]]:
+    """:func:`check_reason` of every failed check of ``ev["checks"]``, in the order they were checked."""
+    return [check_reason(k, ev, unit) for k, ok in (ev.get("checks") or {}).items() if not ok]
 
 
 def judge(paths: Any, base: FitResult, effect: str, rows: ResidualRows, noise: float, kw: dict[str, Any],
@@ -116,7 +230,10 @@ def judge(paths: Any, base: FitResult, effect: str, rows: ResidualRows, noise: f
         "p_value": p, "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks,
         "spec": new.spec, **extra, **evidence,
     }
-    return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence, fitted=new)
+    if hasattr(noise, "estimates"):  # how the floor was estimated (the old residual-based one among them)
+        evidence["noise_floor_estimates"] = dict(noise.estimates)
+    return Candidate(effect, new.spec, all(checks.values()), gain, sentence, evidence, fitted=new,
+                     unit=base.output_unit)
 
 
 def rank(cands: list[Candidate]) -> None:

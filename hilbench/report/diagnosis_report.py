@@ -454,7 +454,7 @@ def _evidence(ev: dict[str, Any]) -> str:
         if k in ev:
             parts.append(f"<b>{_e(k)}</b> {_e(_value(ev[k]))}")
     for k, v in ev.items():
-        if k in _KEY_EVIDENCE or k in ("checks", "spec"):
+        if k in _KEY_EVIDENCE or k in ("checks", "spec", "failed_checks"):
             continue
         parts.append(f"{_e(k)} {_e(_value(v))}")
     checks = ev.get("checks")
@@ -462,15 +462,18 @@ def _evidence(ev: dict[str, Any]) -> str:
         marks = [f"<span class='{'pass' if ok else 'fail'}'>{'✓' if ok else '✗'} {_e(name)}</span>"
                  for name, ok in checks.items()]
         parts.append("checks: " + " ".join(marks))
+    for f in ev.get("failed_checks") or []:  # why not: measured vs required, in words
+        parts.append(f"<span class='fail'>✗ {_e(f.get('check', ''))}: {_e(f.get('text', ''))}</span>")
     return "<span class='ev'>" + "; ".join(parts) + "</span>"
 
 
 def _effects_section(d: Diagnosis) -> str:
     rows, classes = [], []
     for i, c in enumerate(d.effects, 1):
+        doc = c.to_json()  # the explanation with its reason, the evidence with the failed checks
         rows.append([(str(i), "num"), (_e(c.effect), ""), (_e(c.spec), ""),
                      ("<b>yes</b>" if c.significant else "no", ""), (_e(_num(100 * c.expected_gain, 3)), "num"),
-                     (_e(c.explanation), ""), (_evidence(c.evidence), "")])
+                     (_e(doc["explanation"]), ""), (_evidence(doc["evidence"]), "")])
         classes.append("yes" if c.significant else "")
     out = [f"<h2>Candidate effects of {_e(d.spec)}</h2>",
            "<p class='meta'>Ranked: significant first, then by the measured drop of validation rmse "

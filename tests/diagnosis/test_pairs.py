@@ -1,0 +1,158 @@
+"""`hilbench.diagnosis.pairs`: effects that act in the same stretches (creep after each load step)
+are judged together when one at a time finds neither."""
+
+from __future__ import annotations
+
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilbench.diagnosis.diagnose import diagnose
+from hilbench.diagnosis.pairs import should_try
+from hilbench.diagnosis.refit import added_parts, effect_specs, spec_parts
+from hilbench.diagnosis.verdict import Candidate
+from hilbench.recording.hdf5 import RecordingWriter
+from hilbench.rig.config import load_rig
+from hilbench.sim.plant import Plant
+from tests.conftest import MINIMAL_RIG
+
+FS = 1000.0
+SEGMENTS = 8  # each a 1 s sine, then a hold
+SINE_S, HOLD_S = 1.0, 2.5
+GRID_S = 0.1  # the load trajectory's step grid
+
+LOAD_SENSOR = """
+[[sensors]]
+channel = "load"
+unit = "N"
+driver = "sim"
+noise_std = 0.05
+"""
+#: the load changes the gain (1 %/N) and squeezes the stack (0.01 um/N); the creep (40 % over 0.5 s)
+#: follows every change of the hysteresis output, so it drifts after each load step too
+OVERLAP = LOAD_SENSOR + """
+[plant.load]
+gain_per_N = 0.01
+compliance_um_per_N = 0.01
+trajectory = {{ kind = "steps", levels = [{levels}], hold_s = {grid} }}
+
+[plant.creep]
+gains = [0.4]
+time_constants_s = [0.5]
+"""
+#: the same bench, with the load cell recording but no load effect and no creep
+CLEAN = LOAD_SENSOR + """
+[plant.load]
+gain_per_N = 0.0
+compliance_um_per_N = 0.0
+trajectory = {{ kind = "steps", levels = [{levels}], hold_s = {grid} }}
+"""
+
+
+def load_levels(seed: int) -> np.ndarray:
+    """Load (N) on a GRID_S grid: a new level in every segment, set as the input steps into its hold
+    in the first 70 % (training), in the middle of the hold in the rest (validation)."""
+    loads = np.random.default_rng(seed).uniform(0.0, 60.0, SEGMENTS)
+    seg = SINE_S + HOLD_S
+    t = np.arange(0.0, SEGMENTS * seg, GRID_S) + GRID_S / 2
+    levels = np.zeros(t.size)
+    for k in range(SEGMENTS):
+        start = k * seg + SINE_S + (0.0 if k < int(0.7 * SEGMENTS) else HOLD_S / 2)
+        levels[t >= start] = loads[k]
+    return levels
+
+
+def excitation(seed: int) -> np.ndarray:
+    """SEGMENTS x (a 1 Hz sine of 3-6 V, then a hold at a random level in -6..6 V)."""
+    rng = np.random.default_rng(100 + seed)
+    t = np.arange(int(FS * SINE_S)) / FS
+    parts = []
+    for _ in range(SEGMENTS):
+        parts.append(rng.uniform(3, 6) * np.sin(2 * np.pi * 1.0 * t))
+        parts.append(np.full(int(FS * HOLD_S), rng.uniform(-6, 6)))
+    return np.concatenate(parts)
+
+
+def record(folder: Path, name: str, extra: str) -> Path:
+    """Two runs (excitation seeds 0 and 1, the same load schedule) on MINIMAL_RIG plus ``extra``."""
+    levels = ", ".join(f"{x:.3f}" for x in load_levels(5))
+    rig = folder / f"{name}.toml"
+    rig.write_text(textwrap.dedent(MINIMAL_RIG) + "\n" + extra.format(levels=levels, grid=GRID_S), encoding="utf-8")
+    plant = Plant.from_rig(load_rig(rig))
+    out = folder / f"{name}.h5"
+    writer = RecordingWriter(out)
+    for seed in (0, 1):
+        u = excitation(seed)
+        plant.reset()
+        sim = plant.simulate(u)
+        data = {"time": np.arange(u.size) / FS, "input": u, "output": sim.output, **sim.aux}
+        writer.write_run(f"run{seed}", data, {"time": "s", "input": "V", "output": "um", "load": "N"},
+                         experiment="test", excitation="{}", sample_rate_hz=FS)
+    return out
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("pairs")
+
+
+def test_creep_after_load_steps_found_as_a_pair(folder):
+    d = diagnose(record(folder, "overlap", OVERLAP), "pi", auto=True)
+    first = d.rounds[0]
+    by_name = {c.effect: c for c in first.effects}
+    table = [(c.effect, round(c.expected_gain, 3), c.significant) for c in first.effects]
+    before = first.metrics["validation"]["rmse"]
+    # one at a time: neither effect carries over, and neither refit removes the error
+    for single in ("creep", "load"):
+        assert not by_name[single].significant, table
+        assert by_name[single].evidence["validation_rmse"][1] > 0.4 * before, table
+    assert any(by_name[s].evidence["train_gain"] > 0.1 for s in ("creep", "load"))  # but one learned in training
+    # together they do
+    pair = by_name.get("creep+load")
+    assert pair is not None and pair.significant and first.effects[0] is pair, table
+    assert pair.evidence["pair"] == ["creep", "load"] and set(pair.evidence["members"]) == {"creep", "load"}
+    assert "act together" in pair.explanation and "neither carries over alone" in pair.explanation
+    assert pair.evidence["gain_over_best_single"] > 0.1
+    # --auto adds the pair as one step: the spec gains both effects
+    assert [s["added"] for s in d.steps][:2] == [None, "creep+load"]
+    names = [p.split("(")[0] for p in spec_parts(d.steps[1]["spec"])]
+    assert names[0] == "pi" and {"creep", "load"} <= set(names)
+    after = d.steps[-1]["validation"]["rmse"]
+    assert before >= 3.0 * after, (before, after)
+
+
+def test_clean_case_reports_no_pair(folder):
+    d = diagnose(record(folder, "clean", CLEAN), "pi")
+    assert not any("+" in c.effect for c in d.effects), [c.effect for c in d.effects]
+    assert not any(c.significant for c in d.effects)
+
+
+def _cand(effect: str, gain: float, train_gain: float, significant: bool, failed: tuple[str, ...] = ()) -> Candidate:
+    checks = {k: k not in failed for k in ("gain_over_10pct", "train_and_validation_agree", "blocks_p_below_0.01",
+                                           "error_above_noise")}
+    return Candidate(effect, f"pi+{effect}", significant, gain, "", {"train_gain": train_gain, "checks": checks,
+                     "validation_rmse": [1.0, 1.0 - gain]}, fitted=object())  # type: ignore[arg-type]
+
+
+def test_when_pairs_are_tried():
+    agree = ("train_and_validation_agree",)
+    load, creep = _cand("load", -0.1, 0.5, False, agree), _cand("creep", 0.45, 0.05, False, agree)
+    noise = _cand("delay", 0.0, 0.0, False, ("gain_over_10pct",))
+    # one learned in training and failed on validation: the top singles by their better gain, noise left out
+    assert [c.effect for c in should_try([load, creep, noise])] == ["load", "creep"]
+    # a single that explains most of the error: no pairs
+    assert should_try([_cand("asymmetry", 0.8, 0.8, True), load, creep]) == []
+    # nothing improved training and failed on validation: no pairs
+    assert should_try([creep, noise, _cand("saturation", 0.3, 0.3, True)]) == []
+    # at most three members
+    many = [_cand(f"e{k}", -0.1, 0.2 + k / 100, False, agree) for k in range(5)]
+    assert [c.effect for c in should_try(many)] == ["e4", "e3", "e2"]
+
+
+def test_pair_specs():
+    assert added_parts("pi", "pi+creep(form=bank)", "creep") == ["creep(form=bank)"]
+    assert added_parts("linear", "pi", "hysteresis") == ["hysteresis"]
+    assert effect_specs("pi", "creep(form=output)+load") == ["pi+creep(form=output)+load"]
+    assert effect_specs("linear", "hysteresis+creep") == ["pi+creep"]

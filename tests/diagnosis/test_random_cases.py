@@ -1,0 +1,85 @@
+"""Cases of the randomized diagnosis benchmark (benchmarks/diagnosis_cases.py), drawn with fixed seeds.
+
+Each case is a simulated actuator with one hidden effect of a form drawn at random (or none),
+recorded as a bench records it (rest, power-on step, a program of triangles, sines, noise, ...,
+sensor noise and quantisation), diagnosed from the start spec without the effect. What is asserted
+is what the diagnosis SHOULD find; the cases that today's diagnosis gets wrong are marked
+``xfail(strict=True)`` with the failure mode, so the suite flips loudly when they are fixed.
+The generator is not tuned to the diagnosis, and nothing here is tuned per case.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+import diagnosis_cases as DC
+
+from hilbench.diagnosis.diagnose import diagnose
+
+
+def _xfail(reason: str):
+    return pytest.mark.xfail(strict=True, reason=f"issue 'Diagnosis that holds on data it was never tuned to': {reason}")
+
+
+#: seed -> (hidden effect, form) as drawn; the marks say what fails on today's main
+CASES = [
+    pytest.param(22, "asymmetry", "even-2", id="22-asymmetry-even2-pi"),
+    # the knee cuts only the largest excursions: validation rmse drops 58 %, but the gain sits in few of
+    # the 20 blocks and the signed-rank test over blocks fails (p >= 0.01), so it is not significant
+    pytest.param(16, "saturation", "output-knee", id="16-saturation-output-knee-pi",
+                 marks=_xfail("a strong gain confined to the large-drive blocks fails the block test")),
+    pytest.param(122, "creep", "kelvin-voigt-decades", id="122-creep-kelvin-voigt-pi"),
+    # a 1.3-sample sensor delay: delay has the larger gain (0.76) but fails the block test, dynamics
+    # (0.71) passes it and is ranked first
+    pytest.param(175, "delay", "sensor", id="175-delay-sensor-pi1",
+                 marks=_xfail("a fractional sensor delay is taken for dynamics; delay fails the block test")),
+    pytest.param(60, "dynamics", "resonance-above-drive", id="60-dynamics-above-drive-pi1"),
+    pytest.param(165, "rate-dependence", "frequency-gain", id="165-rate-frequency-gain-pi1"),
+    pytest.param(107, "hysteresis", "one-sided-play", id="107-hysteresis-one-sided-linear"),
+    # a warm-up ramp in each run (train and test runs on their own trajectories): the channel model
+    # buys 10 % on validation and training and validation disagree
+    pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1",
+                 marks=_xfail("a temperature gain/strain learned on one run does not carry to the next")),
+]
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return tmp_path_factory.mktemp("random-cases")
+
+
+def test_generator_is_deterministic_and_realistic():
+    a, b = DC.draw_case(22), DC.draw_case(22)
+    assert a.to_json() == b.to_json()
+    for seed in (16, 60, 110, 122, 175):
+        c = DC.draw_case(seed)
+        assert 10_000 <= c.samples() <= 60_000
+        assert 0.001 - 1e-12 <= c.noise_std_um / c.output_span_um <= 0.02 + 1e-12
+        assert all(v >= DC.MIN_SNR * 0.999 for v in c.snr.values()), c.snr
+        assert c.runs[0]["pieces"][0]["kind"] == "hold" and c.runs[0]["pieces"][0]["level"] == 0.0  # from rest
+
+
+@pytest.mark.parametrize(("seed", "hidden", "form"), CASES)
+def test_hidden_effect_ranked_first_and_significant(seed, hidden, form, folder):
+    case = DC.draw_case(seed)
+    assert case.hidden == [hidden] and case.forms[hidden] == form  # the draw the id names
+    paths, kw = DC.write_case(case, folder)
+    d = diagnose(paths, case.spec, **kw)
+    table = [(c.effect, round(c.expected_gain, 3), c.significant) for c in d.effects]
+    assert d.effects and d.effects[0].effect == hidden and d.effects[0].significant, table
+
+
+# a clean PI actuator with a drifting lab temperature recorded (23.4 -> 24.3 degC) that it does not
+# depend on: the channel is flagged (validation gain 18 %)
+@pytest.mark.parametrize("seed", [pytest.param(17, id="17-clean-play-pi-irrelevant-temperature", marks=_xfail(
+    "an irrelevant, drifting auxiliary channel is flagged as an effect on a clean case"))])
+def test_clean_case_flags_nothing(seed, folder):
+    case = DC.draw_case(seed)
+    assert case.hidden == ["none"]
+    paths, kw = DC.write_case(case, folder)
+    d = diagnose(paths, case.spec, **kw)
+    assert not any(c.significant for c in d.effects), [(c.effect, c.expected_gain) for c in d.effects if c.significant]
