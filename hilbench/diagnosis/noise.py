@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.identify.statistics import MAD_TO_STD, difference_noise_std, robust_std
+from hilbench.identify.statistics import difference_noise_std, robust_std
 
 ORDERS = T.NOISE_DIFFERENCE_ORDERS
 MIN_SAMPLES = T.NOISE_MIN_SAMPLES

@@ -867,7 +867,6 @@ class Compensator:
         reference_span: float | None = None,
         max_iterations: int = 60,
     ):
-        from hilbench.models import components as C
 
         if model.weights is None:
             raise UserError("the model has no weights yet: fit it first")
