@@ -85,7 +85,7 @@ from numba import njit
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.models.stepping import model_step
-from hilbench.online.oiir import oiir_step_shaped
+from hilbench.online.oiir import oiir_step_shaped, sgnpow
 
 __all__ = [
     "Compensator",
@@ -206,28 +206,6 @@ S_SHIST = 30  # how many of S_SPREV, S_SPREV2, S_SPREV3 are consecutive Newton s
 N_CX = 31
 
 
-@njit(cache=True, inline="always")
-def _sgnpow(v: float, e: float) -> float:
-    if e == 0.0:
-        return 1.0
-    a = abs(v)
-    if e == 1.0:
-        p = a
-    elif e == 0.5:
-        p = math.sqrt(a)
-    elif e == 2.0:
-        p = a * a
-    elif e == 3.0:
-        p = a * a * a
-    elif e == 4.0:
-        p = (a * a) * (a * a)
-    elif e == 0.25:
-        p = math.sqrt(math.sqrt(a))
-    else:
-        p = a**e
-    return p if v >= 0.0 else -p
-
-
 @njit(cache=True, _nrt=False)
 def _shaped(I: np.ndarray, P: np.ndarray, v: float) -> float:
     """The operators' input: the fractional polynomial of 000 eq. 4-5 (fpmpi), else v itself."""
@@ -236,7 +214,7 @@ def _shaped(I: np.ndarray, P: np.ndarray, v: float) -> float:
         return v
     x = 0.0
     for k in range(nin):
-        x += P[I[ST.I_INW] + k] * _sgnpow(v, P[I[ST.I_INEXP] + k])
+        x += P[I[ST.I_INW] + k] * sgnpow(v, P[I[ST.I_INEXP] + k])
     return x
 
 

@@ -72,7 +72,7 @@ D_BIAS = 2  # 1: a constant regressor is appended
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _sgnpow(x: float, e: float) -> float:
+def sgnpow(x: float, e: float) -> float:
     """sgn(x) |x|^e with 0^0 = 1; the exponents of 000 eq. 5 take exact fast paths."""
     if e == 0.0:
         return 1.0
@@ -100,7 +100,7 @@ def fpmpi_shape(u: float, fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray) -> 
     v = u / fe[F_U_SCALE]
     x = 0.0
     for i in range(exps.shape[0]):
-        x += w_p[i] * _sgnpow(v, exps[i])
+        x += w_p[i] * sgnpow(v, exps[i])
     return x
 
 
