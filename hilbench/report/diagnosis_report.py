@@ -448,7 +448,7 @@ def _where_section(d: Diagnosis) -> str:
 _KEY_EVIDENCE = ("p_value", "validation_rmse", "train_rmse", "train_gain", "blocks_improved", "noise_floor")
 
 
-def _evidence(ev: dict[str, Any]) -> str:
+def evidence_cell(ev: dict[str, Any]) -> str:
     parts = []
     for k in _KEY_EVIDENCE:
         if k in ev:
@@ -473,7 +473,7 @@ def _effects_section(d: Diagnosis) -> str:
         doc = c.to_json()  # the explanation with its reason, the evidence with the failed checks
         rows.append([(str(i), "num"), (_e(c.effect), ""), (_e(c.spec), ""),
                      ("<b>yes</b>" if c.significant else "no", ""), (_e(_num(100 * c.expected_gain, 3)), "num"),
-                     (_e(doc["explanation"]), ""), (_evidence(doc["evidence"]), "")])
+                     (_e(doc["explanation"]), ""), (evidence_cell(doc["evidence"]), "")])
         classes.append("yes" if c.significant else "")
     out = [f"<h2>Candidate effects of {_e(d.spec)}</h2>",
            "<p class='meta'>Ranked: significant first, then by the measured drop of validation rmse "

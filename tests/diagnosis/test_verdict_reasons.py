@@ -16,7 +16,7 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.verdict import Candidate, check_reason, failed_checks, relative_gain
 from hilbench.recording.hdf5 import RecordingWriter
-from hilbench.report.diagnosis_report import _evidence
+from hilbench.report.diagnosis_report import evidence_cell
 from hilbench.rig.config import load_rig
 from hilbench.sim.plant import Plant
 from tests.conftest import MINIMAL_RIG
@@ -74,7 +74,7 @@ def test_only_candidate_fails_one_check_and_says_by_how_much(asymmetric_sine, mo
     assert est["chosen"] in est and est[est["chosen"]] == pytest.approx(ev["noise_floor"])
     assert est["residual"] > 0
     # the HTML report's evidence cell says it too
-    assert f"✗ gain_over_10pct: {failed['text']}" in _evidence(d.effects[0].to_json()["evidence"])
+    assert f"✗ gain_over_10pct: {failed['text']}" in evidence_cell(d.effects[0].to_json()["evidence"])
 
 
 def test_significant_candidate_has_no_failed_checks(asymmetric_sine):
