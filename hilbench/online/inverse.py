@@ -85,7 +85,8 @@ from numba import njit
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.models.stepping import model_step
-from hilbench.online.oiir import oiir_step_shaped, sgnpow
+from hilbench.online.oiir import oiir_step_shaped
+from hilbench.sim.kernels import sgnpow
 
 __all__ = [
     "Compensator",

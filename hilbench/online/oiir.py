@@ -49,6 +49,7 @@ import numpy as np
 from numba import njit
 
 from hilbench.online import rls as R
+from hilbench.sim.kernels import sgnpow
 
 __all__ = ["OIIR", "FPMPIFrontEnd", "oiir_step", "oiir_step_shaped", "oiir_block", "re_n2_pct", "re_ninf_pct", "persistence",
            "offline_hammerstein", "OFFLINE_SPEC"]
@@ -69,29 +70,6 @@ N_XS = 4
 D_M = 0  # numerator order M: u_r(k) .. u_r(k-M)
 D_N = 1  # denominator order N: y(k-1) .. y(k-N)
 D_BIAS = 2  # 1: a constant regressor is appended
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def sgnpow(x: float, e: float) -> float:
-    """sgn(x) |x|^e with 0^0 = 1; the exponents of 000 eq. 5 take exact fast paths."""
-    if e == 0.0:
-        return 1.0
-    a = abs(x)
-    if e == 1.0:
-        p = a
-    elif e == 2.0:
-        p = a * a
-    elif e == 3.0:
-        p = a * a * a
-    elif e == 4.0:
-        p = (a * a) * (a * a)
-    elif e == 0.5:
-        p = math.sqrt(a)
-    elif e == 0.25:
-        p = math.sqrt(math.sqrt(a))
-    else:
-        p = a**e
-    return p if x >= 0.0 else -p
 
 
 @njit(cache=True, inline="always", error_model="numpy")
