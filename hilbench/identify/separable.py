@@ -143,7 +143,7 @@ class _Problem:
         rows, lower, upper, names = [], None, None, []
         for run, blocks, mask in zip(self.runs, self._static_blocks, self.masks):
             if mask.any():  # runs without training rows only carry the memory (static part)
-                A, names, lower, upper = self.model._apply_dynamics(run, blocks, np.flatnonzero(mask))
+                A, names, lower, upper = self.model.apply_dynamics(run, blocks, np.flatnonzero(mask))
                 rows.append(A)
         return (rows[0] if len(rows) == 1 else np.vstack(rows)), lower, upper, names
 

@@ -468,14 +468,15 @@ class Asymmetry(Component):
     summary = "memoryless polynomial v^2 ... v^order, order 4 by default (002 cubic, 004 PMPI): loops not centrally symmetric"
     options_schema = {"order": Option("int", default=4, minimum=2, maximum=8, doc="highest power of the polynomial")}
 
-    def _order(self) -> int:
+    def order(self) -> int:
+        """The highest power of the even/odd polynomial (option ``order``, 2 to 8)."""
         order = int(self.options.get("order", 4))
         if not 2 <= order <= 8:
             raise UserError(f"asymmetry(order={order}): the order must be 2 to 8")
         return order
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
-        powers = range(2, self._order() + 1)
+        powers = range(2, self.order() + 1)
         return Columns.of(np.column_stack([s.v**k for k in powers]), [f"asym*v^{k}" for k in powers], hysteresis=True)
 
 

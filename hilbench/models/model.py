@@ -197,13 +197,13 @@ class Model:
 
     def design_runs(self, runs: list[RunData]) -> list[tuple[np.ndarray, list[str], np.ndarray, np.ndarray]]:
         """Regressor matrices of runs (memory chained where marked), dynamics applied."""
-        return [self._apply_dynamics(run, blocks) for run, blocks in self._sequence(runs)]
+        return [self.apply_dynamics(run, blocks) for run, blocks in self._sequence(runs)]
 
     def design(self, run: RunData) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
         """Regressor matrix of one run from fresh memory, dynamics applied, names and weight bounds."""
-        return self._apply_dynamics(run, self.static_columns(run))
+        return self.apply_dynamics(run, self.static_columns(run))
 
-    def _apply_dynamics(
+    def apply_dynamics(
         self, run: RunData, blocks: list[Columns], rows: np.ndarray | None = None
     ) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
         """Stack the static blocks, apply the dynamics and the delay; ``rows`` selects rows.

@@ -460,8 +460,8 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     asym = model.effect("asymmetry")
     n_asym = 0
     if asym is not None:
-        I[I_ASYM] = asym._order()
-        n_asym = asym._order() - 1
+        I[I_ASYM] = asym.order()
+        n_asym = asym.order() - 1
     nba = nb + n_asym
     I[I_NBA] = nba
     I[I_NKPRE] = nba - 1

@@ -808,7 +808,7 @@ def _polynomial(model: Any, n_ops: int) -> np.ndarray:
         k += 2
     asym = model.effect("asymmetry")
     if asym is not None:
-        for power in range(2, asym._order() + 1):
+        for power in range(2, asym.order() + 1):
             coef[power] += w[k]
             k += 1
     deg = int(np.max(np.flatnonzero(coef), initial=0))
@@ -1191,13 +1191,13 @@ class Compensator:
         """The identifier's kernel arguments (a small unused one when not adaptive, so the compiled
         loop has one signature)."""
         if self.oiir is not None:
-            return self.oiir._args()
+            return self.oiir.kernel_args()
         if self._dummy_oiir is None:
             from hilbench.online.oiir import OIIR, FPMPIFrontEnd
 
             fe = FPMPIFrontEnd(1.0, np.ones(1), np.ones(1), np.zeros(1), np.ones(1))
             self._dummy_oiir = OIIR(fe, 0, 0)
-        return self._dummy_oiir._args()
+        return self._dummy_oiir.kernel_args()
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(CI, CP, CX, I, P, X)`` for compiled callers."""

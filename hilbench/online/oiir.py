@@ -318,7 +318,10 @@ class OIIR:
         s = R.new_state(self.n_weights, float(self.cfg[R.C_DELTA]), self._theta0)
         self.theta, self.P, self.g, self.st = s["theta"], s["P"], s["g"], s["st"]
 
-    def _args(self) -> tuple:
+    def kernel_args(self) -> tuple:
+        """The arrays of :func:`oiir_step` after its (u, y) arguments, in order: the front end's
+        parameters, the operator and regressor state, the RLS state and settings (for compiled
+        loops that call the step themselves)."""
         f = self.front_end
         return (f.fe, f.exps, f.w_p, f.r, f.eta, f.w_h, self.ops, self.xbuf, self.opbuf, self.dims, self.xs,
                 self.phi, self.theta, self.P, self.g, self.cfg, self.st)
@@ -326,7 +329,7 @@ class OIIR:
     def step(self, u: float, y: float) -> float:
         """Step mode: input u (command units) and measured output y (um) of sample k; returns the
         online model output y_m(k) predicted before y(k) was used."""
-        return oiir_step(float(u), float(y), *self._args())
+        return oiir_step(float(u), float(y), *self.kernel_args())
 
     def run(self, u: np.ndarray, y: np.ndarray, decimate: int = 1) -> dict[str, np.ndarray]:
         """Block mode. Returns ``y_m`` (online model output), ``u_r`` (FPMPI output) and
@@ -339,7 +342,7 @@ class OIIR:
         y_m = np.empty(n)
         u_r = np.empty(n)
         hist = np.empty((n // decimate if decimate > 0 else 0, self.n_weights))
-        oiir_block(u, y, *self._args(), y_m, u_r, hist, int(decimate))
+        oiir_block(u, y, *self.kernel_args(), y_m, u_r, hist, int(decimate))
         return {"y_m": y_m, "u_r": u_r, "weights": hist}
 
     def counters(self) -> dict[str, Any]:

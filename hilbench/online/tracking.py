@@ -135,21 +135,11 @@ class SimulatedLoop:
 
     def inputs(self, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         p = self.plant
-        B = np.zeros((3, n))
-        t = (p.samples + np.arange(n)) / p.sample_rate_hz
-        truth: dict[str, np.ndarray] = {}
-        if "temperature" in p.tables:
-            B[K.B_TEMPERATURE] = truth["temperature"] = p._trajectory("temperature", t)
-        if "load" in p.tables:
-            B[K.B_LOAD] = truth["load"] = p._trajectory("load", t)
-        if p.S[K.S_NOISE_STD] > 0:
-            B[K.B_NOISE] = p._draw(p._rng_output, K.B_NOISE, n)
+        B, aux_noise = p.draw_inputs(n)
         aux: dict[str, np.ndarray] = {}
-        for channel, row in p._aux_rows.items():
-            noise = p._draw(p._rng_aux[channel], row, n) if p.sensors[channel].noise_std > 0 else None
-            if channel in truth:
-                aux[channel] = p._read_aux(p.sensors[channel], truth[channel], noise)
-        p._pos = min(p.STEP_BATCH, p._pos + n)
+        for channel, row in (("temperature", K.B_TEMPERATURE), ("load", K.B_LOAD)):
+            if channel in p.sensors and channel in p.tables:
+                aux[channel] = p.read_aux(channel, B[row], aux_noise.get(channel))
         return B, aux
 
     def run(self, ref: np.ndarray) -> dict[str, Any]:
@@ -319,8 +309,8 @@ def track(
     limited = 0
     plant = getattr(rig.lockstep, "plant", None)
     if plant is not None and hasattr(plant, "step_arrays"):
-        # Lock-step simulation: the fused loop; the rig's safety state is its own array (_last).
-        loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig._last)
+        # Lock-step simulation: the fused loop, on the rig's own safety state.
+        loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig.safety_state)
         for start in range(0, n, chunk_samples):
             stop = min(n, start + chunk_samples)
             out = loop.run(ref[start:stop])

@@ -112,6 +112,13 @@ class Rig:
     def last_applied(self) -> float:
         return float(self._last[0])
 
+    @property
+    def safety_state(self) -> np.ndarray:
+        """The safety path's state: a (1,) array holding the last applied command. A compiled loop
+        that runs the safety path itself (the fused closed loop) updates this same array, so the
+        rig's slew limit carries on across it and Python-driven samples."""
+        return self._last
+
     def channels(self) -> list[ChannelSpec]:
         specs = [
             ChannelSpec("time", "s", CANONICAL_CHANNELS["time"][1]),

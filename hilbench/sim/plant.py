@@ -255,21 +255,41 @@ class Plant:
             return self._batch[row, self._pos : self._pos + n].copy()
         return np.concatenate([self._batch[row, self._pos :], rng.standard_normal(n - k)])
 
+    def draw_inputs(self, n: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """The next n samples' per-sample inputs, drawn from the plant's seeded streams in the order
+        block mode draws them, and consumed (the streams advance as if n samples were simulated).
+
+        Returns ``B`` (3, n): rows :data:`K.B_NOISE` (the output sensor's standard-normal draws, zeros
+        when it is noiseless), :data:`K.B_TEMPERATURE` (degC) and :data:`K.B_LOAD` (N) (their true
+        trajectories, zeros when the plant has no such stage), and the auxiliary sensors' draws by
+        channel (noisy sensors only). A compiled loop that calls :func:`K.plant_step` itself (the
+        fused closed loop) takes its inputs from here, so it reproduces :meth:`simulate`.
+        """
+        B = np.zeros((K.B_LOAD + 1, n))
+        if "temperature" in self.tables or "load" in self.tables:  # the run clock only when needed
+            t = (self.samples + np.arange(n)) / self.sample_rate_hz
+            if "temperature" in self.tables:
+                B[K.B_TEMPERATURE] = self._trajectory("temperature", t)
+            if "load" in self.tables:
+                B[K.B_LOAD] = self._trajectory("load", t)
+        if self.S[K.S_NOISE_STD] > 0:
+            B[K.B_NOISE] = self._draw(self._rng_output, K.B_NOISE, n)
+        aux_noise = {channel: self._draw(self._rng_aux[channel], row, n)
+                     for channel, row in self._aux_rows.items() if self.sensors[channel].noise_std > 0}
+        self._pos = min(self.STEP_BATCH, self._pos + n)
+        return B, aux_noise
+
+    def read_aux(self, channel: str, truth: np.ndarray, noise: np.ndarray | None) -> np.ndarray:
+        """What the auxiliary sensor ``channel`` reads for the true values ``truth`` (its unit) with
+        its standard-normal draws ``noise`` (None: noiseless): noise, quantisation, range."""
+        return self._read_aux(self.sensors[channel], truth, noise)
+
     def simulate(self, command: np.ndarray) -> PlantOutput:
         """Block mode: simulate len(command) samples from the current state."""
         u = np.ascontiguousarray(command, dtype=np.float64)
         n = u.shape[0]
-        temperature = load = _EMPTY
-        if "temperature" in self.tables or "load" in self.tables:  # the run clock only when needed
-            t = (self.samples + np.arange(n)) / self.sample_rate_hz
-            if "temperature" in self.tables:
-                temperature = self._trajectory("temperature", t)
-            if "load" in self.tables:
-                load = self._trajectory("load", t)
-        noise = self._draw(self._rng_output, K.B_NOISE, n) if self.S[K.S_NOISE_STD] > 0 else np.zeros(n)
-        aux_noise = {channel: self._draw(self._rng_aux[channel], row, n)
-                     for channel, row in self._aux_rows.items() if self.sensors[channel].noise_std > 0}
-        self._pos = min(self.STEP_BATCH, self._pos + n)
+        B, aux_noise = self.draw_inputs(n)
+        temperature, load, noise = B[K.B_TEMPERATURE], B[K.B_LOAD], B[K.B_NOISE]
         measured = np.empty(n)
         true = np.empty(n)
         drive = np.empty(n)
@@ -283,8 +303,12 @@ class Plant:
         aux: dict[str, np.ndarray] = {}
         for channel, truth in (("temperature", temperature), ("load", load), ("current", drive)):
             sensor = self.sensors.get(channel)
-            if sensor is not None:
-                aux[channel] = self._read_aux(sensor, truth, aux_noise.get(channel))
+            if sensor is None:
+                continue
+            if channel != "current" and channel not in self.tables:
+                aux[channel] = _EMPTY.copy()  # a sensor of a quantity the plant does not model
+                continue
+            aux[channel] = self._read_aux(sensor, truth, aux_noise.get(channel))
         return PlantOutput(measured, true, drive, aux)
 
     def step_value(self, command: float) -> float:
