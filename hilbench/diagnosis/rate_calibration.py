@@ -9,6 +9,12 @@ the validation runs at the nearer rates, then fixed, and the model is refitted o
 alone; the validation runs at the farthest rate, which no fit saw, *confirm* it. The fixed shape is
 written into the spec (``pi+delay(seconds=0.000176)``), so the result is reproducible and
 ``--add``/``--auto`` carry it on. See docs/decisions/0006-rate-effects-from-one-training-rate.md.
+
+When validation holds only one other rate, a power-on step at the start of a training run (the
+command at its first level from the first sample, the output moving to it with the actuator's own
+transient: :mod:`hilbench.identify.power_on`) is a step response recorded at no drive rate at all:
+its dead time and ringing calibrate ``delay`` and ``dynamics``, and every validation run confirms
+(decision 0015).
 """
 
 from __future__ import annotations
@@ -20,6 +26,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hilbench.diagnosis.input_motion import half_cycle_frequencies, motion
+from hilbench.identify.power_on import PowerOnStep, power_on_step
+from hilbench.identify.trimming import leading_rest, unsettled_rest
 
 if TYPE_CHECKING:
     from hilbench.identify.fitting import FitResult, FitRun
@@ -40,17 +48,32 @@ class RatePlan:
     training_hz: float
     calibrate_hz: list[float]
     confirm_hz: list[float]
+    #: calibration from a power-on step response instead of calibrating runs (``calibrate`` is empty)
+    step: PowerOnStep | None = None
+    step_run: str = ""
+
+    @property
+    def calibrated_by(self) -> str:
+        """Where the shape comes from, for the verdict's sentence."""
+        if self.step is not None:
+            s = self.step
+            return (f"the power-on step of {self.step_run} (dead time {1e3 * s.dead_time_s:.3g} ms from the record "
+                    f"start, ringing {s.natural_frequency_hz:.3g} Hz, zeta {s.zeta:.2g}, R^2 {s.r2:.4f})")
+        return f"{'/'.join(f'{f:.3g}' for f in self.calibrate_hz)} Hz"
 
     def describe(self) -> str:
         def hz(values: Sequence[float]) -> str:
             return "/".join(f"{v:.3g}" for v in values) + " Hz"
 
-        return (f"calibrated on {', '.join(self.calibrate)} ({hz(self.calibrate_hz)}), confirmed on "
-                f"{', '.join(self.confirm)} ({hz(self.confirm_hz)})")
+        source = f"{', '.join(self.calibrate)} ({hz(self.calibrate_hz)})" if self.step is None else self.calibrated_by
+        return f"calibrated on {source}, confirmed on {', '.join(self.confirm)} ({hz(self.confirm_hz)})"
 
     def to_json(self) -> dict[str, Any]:
-        return {"training_hz": self.training_hz, "calibrated_on": self.calibrate, "calibrate_hz": self.calibrate_hz,
-                "confirmed_on": self.confirm, "confirm_hz": self.confirm_hz}
+        out = {"training_hz": self.training_hz, "calibrated_on": self.calibrate, "calibrate_hz": self.calibrate_hz,
+               "confirmed_on": self.confirm, "confirm_hz": self.confirm_hz}
+        if self.step is not None:
+            out["power_on_step"] = {"run": self.step_run, **self.step.to_json()}
+        return out
 
 
 def _drive_hz(runs: Sequence[FitRun], span: float) -> float:
@@ -90,22 +113,55 @@ def rate_plan(result: FitResult) -> tuple[RatePlan | None, str]:
         else:
             groups.append([(f, key)])
     if len(groups) < 2:
+        step_plan = _power_on_plan(train, runs, f_train, span)
+        if step_plan is not None:
+            return step_plan, ""
         seen = ", ".join(f"{f:.3g} Hz" for f, _ in other) or "none"
         return None, (f"validation holds fewer than two other drive rates (training {f_train:.3g} Hz, other rates: "
-                      f"{seen}), so a rate effect cannot be calibrated on one and confirmed on another")
+                      f"{seen}) and no training run starts with a power-on step, so a rate effect cannot be "
+                      "calibrated on one and confirmed on another")
     far = max(groups, key=lambda g: _ratio(float(np.median([f for f, _ in g])), f_train))
     near = [item for g in groups if g is not far for item in g]
     return RatePlan(train=[r.key for r in train], calibrate=[k for _, k in near], confirm=[k for _, k in far],
                     training_hz=f_train, calibrate_hz=[f for f, _ in near], confirm_hz=[f for f, _ in far]), ""
 
 
-def calibrated_spec(paths: Any, base_spec: str, effect: str, plan: RatePlan) -> tuple[str, FitResult]:
+def _power_on_plan(train: Sequence[FitRun], runs: Sequence[FitRun], f_train: float, span: float) -> RatePlan | None:
+    """A plan calibrated on the cleanest power-on step among the training runs, confirmed on every
+    validation run; None without one."""
+    best: tuple[PowerOnStep, str] | None = None
+    for r in train:
+        fs = r.data.sample_rate_hz
+        rest = leading_rest(r.data.input, fs)
+        if not rest or not unsettled_rest(r.data.output, rest):
+            continue
+        step = power_on_step(r.data.output, fs, rest)
+        if step is not None and (best is None or step.r2 > best[0].r2):
+            best = (step, r.key)
+    if best is None:
+        return None
+    confirm = [r for r in runs if r.validation.any()]
+    confirm_hz = [_drive_hz([r], span) for r in confirm]
+    return RatePlan(train=[r.key for r in train], calibrate=[], confirm=[r.key for r in confirm], training_hz=f_train,
+                    calibrate_hz=[], confirm_hz=[f for f in confirm_hz if np.isfinite(f)], step=best[0],
+                    step_run=best[1])
+
+
+def calibrated_spec(paths: Any, base_spec: str, effect: str, plan: RatePlan) -> tuple[str, FitResult | None]:
     """``base_spec`` plus ``effect`` with its shape fitted on training + calibration runs and fixed
-    (every shape parameter written as an option), and that calibration fit."""
+    (every shape parameter written as an option), and that calibration fit; with a power-on step,
+    the shape read off the step (no calibration fit)."""
     from hilbench.identify.fitting import fit
 
-    probe = fit(paths, f"{base_spec}+{effect}", train=plan.train + plan.calibrate, test=plan.confirm)
     name = effect.split("(", 1)[0].strip()
+    if plan.step is not None:
+        s = plan.step
+        if name == "delay":
+            return f"{base_spec}+delay(seconds={s.dead_time_s:.6g})", None
+        return (f"{base_spec}+dynamics(kind=second-order,natural_frequency_hz={s.natural_frequency_hz:.6g},"
+                f"zeta={s.zeta:.6g})"), None
+
+    probe = fit(paths, f"{base_spec}+{effect}", train=plan.train + plan.calibrate, test=plan.confirm)
     component = probe.model.effect(name)
     assert component is not None, (effect, probe.spec)
     options = {**{k: v for k, v in component.options.items()}, **{p.name: f"{p.value:.6g}" for p in component.params}}
