@@ -26,6 +26,13 @@ STEP_FRACTION = 0.05
 #: samples (or input fraction of the span) around a reversal that count as "turning"
 TURNING_SAMPLES = 5
 TURNING_SPAN = 0.02
+#: The input "excites" a frequency where its power spectral density stands this far above the
+#: input's own noise floor (20 dB) and above EXCITED_RELATIVE of its strongest component (-60 dB:
+#: a harmonic of 0.1 % of the drive's amplitude; behind a resonance of Q ~ 10 that is a ringing of
+#: 1 % of the output's, well above a sensor's noise). A sharp triangle's harmonics fall as 1/k^2 in
+#: amplitude and reach ~30x its drive frequency; a sine's end at its own frequency.
+EXCITED_OVER_NOISE = 100.0
+EXCITED_RELATIVE = 1e-6
 
 
 def input_noise(u: np.ndarray) -> float:
@@ -102,6 +109,23 @@ def motion(u: np.ndarray, fs: float, span: float) -> dict[str, np.ndarray]:
     return {"du": du, "direction": direction, "since": since, "flips": flips, "still": still}
 
 
+def excited_bandwidth_hz(u: np.ndarray, fs: float) -> float:
+    """The highest frequency (Hz) the input excites (module constants EXCITED_*): Welch's power
+    spectral density against the median of its top quarter band (the white noise of a measured input,
+    or the quantisation of a digital one) and against its peak. 0 for too short a record."""
+    from scipy import signal
+
+    u = u[np.isfinite(u)]
+    if u.size < 64:
+        return 0.0
+    f, p = signal.welch(u - float(np.mean(u)), fs, nperseg=min(u.size, 4096))
+    top = p[f >= 0.375 * fs]
+    floor = float(np.median(top)) if top.size else 0.0
+    level = max(EXCITED_OVER_NOISE * floor, EXCITED_RELATIVE * float(p.max()))
+    above = np.flatnonzero(p > level)
+    return float(f[above[-1]]) if above.size else 0.0
+
+
 def half_cycle_frequencies(flips: np.ndarray, fs: float) -> np.ndarray:
     """Drive frequency (Hz) of every half cycle between consecutive reversals."""
     return fs / (2.0 * np.diff(flips)) if flips.size >= 2 else np.zeros(0)
@@ -117,12 +141,13 @@ def _time_percentile(f: np.ndarray, q: float) -> float:
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
     over time of the half-cycle frequencies), their range (Hz), the longest hold (s), the number of steps and
-    of reversals."""
+    of reversals, and the highest frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
     us = [u for u in inputs if u.size]
     if span is None:
         span = max(float(np.ptp(np.concatenate(us))), 1e-12) if us else 1.0
-    freqs, plateau_s, jumps = [], 0.0, 0
+    freqs, plateau_s, jumps, excited = [], 0.0, 0, 0.0
     for u in us:
+        excited = max(excited, excited_bandwidth_hz(u, fs))
         m = motion(u, fs, span)
         freqs.append(half_cycle_frequencies(m["flips"], fs))
         plateau_s = max(plateau_s, float(m["since"].max()))
@@ -132,7 +157,7 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
     return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
-            "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size)}
+            "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
 
 
-__all__ = ["excitation_summary", "half_cycle_frequencies", "hold_band", "input_noise", "motion"]
+__all__ = ["excitation_summary", "excited_bandwidth_hz", "half_cycle_frequencies", "hold_band", "input_noise", "motion"]

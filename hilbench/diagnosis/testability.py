@@ -134,11 +134,29 @@ def _several_rates(name: str, ctx: DataContext) -> Verdict:
     return None
 
 
+def _rings(ex_train: dict[str, Any], top_hz: float) -> bool:
+    """Whether the training input's own content reaches HARMONIC_REACH x its drive frequency and the
+    highest drive frequency to be predicted (triangle corners: the dynamics show at one rate)."""
+    f = ex_train["frequencies_hz"]
+    return bool(f) and ex_train["excited_hz"] >= max(T.HARMONIC_REACH * f[1], top_hz)
+
+
+def _reach(ex: dict[str, Any]) -> str:
+    return f"its content reaches {ex['excited_hz']:.3g} Hz, under {T.HARMONIC_REACH:g}x its drive frequency"
+
+
 def _broadband(name: str, ctx: DataContext) -> Verdict:
+    top = ctx.ex["frequencies_hz"][1] if ctx.ex["frequencies_hz"] else 0.0
     if not ctx.broadband:
-        return f"{ctx.single} and no steps: a {name} phase lag at one frequency looks like loop width"
+        if _rings(ctx.ex_train, top):
+            return None  # one rate, but its corners ring the dynamics: learned and judged as they are
+        return f"{ctx.single} and no steps ({_reach(ctx.ex)}): a {name} phase lag at one frequency looks like loop width"
     if not ctx.broadband_train:
-        return CALIBRATE if ctx.plan is not None else f"{ctx.single_train} and no steps, and {ctx.no_plan}"
+        if ctx.plan is not None:
+            return CALIBRATE
+        if _rings(ctx.ex_train, top):
+            return None  # the training input's harmonics reach the validation's rates
+        return f"{ctx.single_train} and no steps ({_reach(ctx.ex_train)}), and {ctx.no_plan}"
     return None
 
 

@@ -62,6 +62,12 @@ SIGNATURE_MARGIN = 0.2
 #: gives well under 1, a 1.5 degC drift under 0.15 degC of noise gives 10.
 AUX_MIN_VARIATION = 3.0
 
+#: A drive rings the dynamics at one rate when its input excites (input_motion.excited_bandwidth_hz)
+#: at least this multiple of its highest drive frequency: a triangle's corners reach ~30x (its
+#: harmonics fall as 1/k^2), a sine's content ends at 1x. Issue 11 item 3a: a 10 Hz triangle
+#: identifies a 350 Hz resonance, a 10 Hz sine does not.
+HARMONIC_REACH = 5.0
+
 #: Drive frequencies count as several when the spread (highest over lowest half-cycle frequency
 #: in time percentiles) reaches this ratio.
 SEVERAL_RATES_SPREAD = 1.5
