@@ -32,6 +32,11 @@ from hilbench.errors import DataError, UserError
 from hilbench.identify import FitReport, fit_model
 from hilbench.identify.dataset import Dataset, FitRun, PathLike, as_dataset, load_runs, match_runs
 from hilbench.identify.metrics import METRIC_KEYS, metrics
+from hilbench.identify.sweep import BLOCKS as SWEEP_BLOCKS
+from hilbench.identify.sweep import interleaved, sweeps_past_split, validation_blocks
+
+#: in a split's description: some runs were split in interleaved blocks (the notes then say so)
+SWEPT = "sweep their drive frequency,"
 from hilbench.models import Model, SpecError
 
 ROLES = ("train", "validation")
@@ -55,14 +60,24 @@ def assign_roles(
     if not train and not test:
         if not 0.0 < train_fraction <= 1.0:
             raise UserError(f"the training fraction must be in (0, 1], got {train_fraction:g}", where="--train-fraction")
+        swept = []
         for r, kept in zip(runs, keeps):
             idx = np.arange(len(r.data))
             rows = np.flatnonzero(kept)
             k = int(math.floor(rows.size * train_fraction))
             cut = int(rows[k]) if k < rows.size else len(r.data)
             r.train, r.validation = kept & (idx < cut), kept & (idx >= cut)
+            span = sweeps_past_split(r.data.input, r.data.sample_rate_hz, r.train, r.validation) \
+                if validation_blocks(train_fraction) >= 1 else None
+            if span is not None:  # a sweep: validation would hold rates training never saw
+                r.train, r.validation = interleaved(kept, train_fraction)
+                swept.append(f"{r.key} ({span[0]:.3g}-{span[1]:.3g} Hz)")
         pct = 100.0 * train_fraction
-        return f"first {pct:g} % of each run trains, last {100.0 - pct:g} % validates"
+        text = f"first {pct:g} % of each run trains, last {100.0 - pct:g} % validates"
+        if swept:
+            text += (f"; except the runs that {SWEPT} {', '.join(swept)}: {validation_blocks(train_fraction)} of "
+                     f"{SWEEP_BLOCKS} interleaved blocks validate, so training sees rates across the span")
+        return text
     train_set = match_runs(train or [], runs, "--train")
     test_set = match_runs(test or [], runs, "--test")
     both = train_set & test_set
@@ -262,6 +277,8 @@ def fit(
     model = Model(spec, channels=union)
     _check_aux(model, runs)
     split = assign_roles(runs, train, test, train_fraction, dataset.keep)
+    if SWEPT in split:
+        notes.append(f"split: {split}")
     if _training_size(runs) == 0:
         available = ", ".join(f"{r.key} ({len(r.data)} samples, {r.role})" for r in runs)
         raise UserError(f"the training set is empty ({split}): no training sample with a finite output; "
@@ -294,6 +311,8 @@ def evaluate(
     runs, u_unit, y_unit = dataset.fit_runs(), dataset.input_unit, dataset.output_unit
     _check_aux(model, runs)
     split = assign_roles(runs, train, test, train_fraction, dataset.keep)
+    if SWEPT in split:
+        notes.append(f"split: {split}")
     _validation_note(runs, notes)
     overall = _score(runs, model)
     return FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,
