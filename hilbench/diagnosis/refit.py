@@ -21,7 +21,6 @@ is fitted as written, with no choice of form.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -31,7 +30,8 @@ from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.rate_calibration import RatePlan, calibrated_spec
 from hilbench.errors import UserError
-from hilbench.identify.fitting import FitResult, fit
+from hilbench.identify.dataset import as_dataset
+from hilbench.identify.fitting import FitResult, assign_roles, fit
 from hilbench.models.model import split_spec
 
 
@@ -92,17 +92,13 @@ def effect_specs(spec: str, effect: str) -> list[str]:
         else [spec_with(spec, effect)]
 
 
-def inner_rmse(result: FitResult, inner: float, outer: float) -> float:
-    """rmse on the rows between the ``inner`` and ``outer`` fractions of every run: training rows
-    of the user's split that the inner fit did not see."""
+def inner_rmse(result: FitResult, held_back: list[np.ndarray]) -> float:
+    """rmse on ``held_back`` rows (one mask per run) of an inner fit's free run."""
     parts = []
-    for r in result.runs:
-        rows = np.flatnonzero(r.train | r.validation)  # the rows the user's split keeps
-        n = rows.size
-        lo, hi = int(math.floor(n * inner)), int(math.floor(n * outer))
-        if r.simulated is None or r.simulated.size == 0 or hi <= lo:
+    for r, rows in zip(result.runs, held_back):
+        if r.simulated is None or r.simulated.size == 0 or not rows.any():
             continue
-        e = (r.simulated - r.data.output)[rows[lo:hi]]
+        e = (r.simulated - r.data.output)[rows]
         parts.append(e[np.isfinite(e)])
     e = np.concatenate(parts) if parts else np.zeros(0)
     return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
@@ -110,11 +106,20 @@ def inner_rmse(result: FitResult, inner: float, outer: float) -> float:
 
 def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -> str:
     """The first spec, unless a richer one (later in ``specs``) predicts held-back training rows
-    better by RICHER_FORM_MARGIN."""
+    better by RICHER_FORM_MARGIN. The inner fits train on the first INNER_SPLIT of the training
+    fraction and are scored on the user's training rows they did not see (for a run split in
+    interleaved blocks, :mod:`hilbench.identify.sweep`, the blocks between the two splits)."""
     inner = T.INNER_SPLIT * train_fraction
     if not 0.0 < inner < train_fraction or len(specs) == 1:
         return specs[0]
-    scores = [inner_rmse(fit(paths, s, train_fraction=inner), inner, train_fraction) for s in specs]
+    dataset = as_dataset(paths)
+    user = dataset.fit_runs()
+    assign_roles(user, None, None, train_fraction, dataset.keep)
+    scores = []
+    for s in specs:
+        result = fit(dataset, s, train_fraction=inner)
+        held_back = [r.validation & u.train for r, u in zip(result.runs, user)]
+        scores.append(inner_rmse(result, held_back))
     best = min(range(1, len(specs)), key=lambda k: scores[k])
     return specs[best] if scores[best] < (1.0 - T.RICHER_FORM_MARGIN) * scores[0] else specs[0]
 
