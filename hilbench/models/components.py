@@ -706,8 +706,11 @@ class RateDependence(Component):
             # validated at 50 Hz, 0.53 um rms held vs 0.083 um extrapolated). The guard is physical
             # instead: a change of STEP_SPAN_FRACTION of the input span within one sample is a step,
             # which no actuator follows (its amplifier slews), so rates are held at that slope.
+            # The frequency form keeps the largest training rate: its k(f), c(f) are polynomials,
+            # for rates inside the training span, and its damping is normalised by f a.
             span = float(np.ptp(s.v)) if s.v.size else 0.0
-            self.constants["vdot_max"] = (STEP_SPAN_FRACTION * span * s.fs) or 1.0
+            guard = STEP_SPAN_FRACTION * span * s.fs if form == "damping" else float(np.max(np.abs(s.vdot)))
+            self.constants["vdot_max"] = guard or 1.0
             self.constants["waveform"] = str(self.options.get("waveform", "sine"))
             self.constants["harmonics"] = int(self.options.get("harmonics", 9))
 
