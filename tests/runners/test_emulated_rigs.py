@@ -77,7 +77,11 @@ def test_the_001_sweep_through_each_protocol_path_matches_the_simulated_backend(
     print(kind, "rms output difference per run (um):", [round(x, 4) for x in report])
     emulated_verdict, sim_verdict = verdict(out), verdict(sim_path)
     print(kind, "diagnosis (effect, significant), emulated:", emulated_verdict, "simulated:", sim_verdict)
-    assert emulated_verdict == sim_verdict
+    # The two recordings are independent noise draws: the findings (the significant candidates, in
+    # rank order) and the candidates tried must agree; the order among the refused ones follows gains
+    # of a fraction of a percent, which the noise draw decides.
+    assert [v for v in emulated_verdict if v[1]] == [v for v in sim_verdict if v[1]]
+    assert sorted(emulated_verdict) == sorted(sim_verdict)
 
 
 def test_a_paced_fixed_rate_run_records_lateness_and_counts_overruns(tmp_path):
