@@ -26,6 +26,7 @@ import numpy as np
 from scipy import optimize
 
 from hilbench.identify.statistics import difference_noise_std
+from hilbench.identify.step_response import second_order_step
 
 #: the response must move by this many sensor-noise sigmas to count as a step
 MIN_STEP_SIGMAS = 20.0
@@ -51,19 +52,6 @@ class PowerOnStep:
 
     def to_json(self) -> dict[str, Any]:
         return {k: float(v) if isinstance(v, float) else v for k, v in self.__dict__.items()}
-
-
-def _unit_response(tau: np.ndarray, zeta: float, wn: float) -> np.ndarray:
-    """Unit step response of wn^2 / (s^2 + 2 zeta wn s + wn^2) at times tau (s; 0 before 0)."""
-    tau = np.clip(tau, 0.0, None)
-    if zeta < 1.0:
-        wd = wn * math.sqrt(1.0 - zeta * zeta)
-        return 1.0 - np.exp(-zeta * wn * tau) * (np.cos(wd * tau) + zeta * wn / wd * np.sin(wd * tau))
-    if zeta == 1.0:
-        return 1.0 - np.exp(-wn * tau) * (1.0 + wn * tau)
-    root = math.sqrt(zeta * zeta - 1.0)
-    p1, p2 = wn * (-zeta + root), wn * (-zeta - root)
-    return 1.0 + (p2 * np.exp(p1 * tau) - p1 * np.exp(p2 * tau)) / (p1 - p2)
 
 
 def power_on_step(y: np.ndarray, sample_rate_hz: float, rest: int, max_dead_time_s: float = 0.005) -> PowerOnStep | None:
@@ -97,7 +85,7 @@ def power_on_step(y: np.ndarray, sample_rate_hz: float, rest: int, max_dead_time
     t_half = above[0] / sample_rate_hz  # the rise's half-way time bounds the dead time and sets wn's scale
 
     def resid(p: np.ndarray) -> np.ndarray:
-        return p[3] * _unit_response(t - p[0], p[1], p[2]) - rr
+        return p[3] * second_order_step(t - p[0], p[1], p[2]) - rr
 
     best = None
     hi_td = min(max_dead_time_s, t_half)

@@ -27,6 +27,16 @@ SETTLING_BAND = 0.02  # the 2 % band of the settling time
 # ------------------------------------------------------------------------------------------------
 # paper 002 eq. 9 and 10
 # ------------------------------------------------------------------------------------------------
+def second_order_step(t_s: np.ndarray, zeta: float, wn_rad_s: float) -> np.ndarray:
+    """Unit step response of wn^2 / (s^2 + 2 zeta wn s + wn^2) at times t_s (s from the step; 0 before)."""
+    tau = np.clip(np.asarray(t_s, float), 0.0, None)
+    if abs(zeta - 1.0) < 1e-9:
+        return 1.0 - np.exp(-wn_rad_s * tau) * (1.0 + wn_rad_s * tau)
+    root = np.sqrt(complex(zeta**2 - 1.0))
+    p1, p2 = wn_rad_s * (-zeta + root), wn_rad_s * (-zeta - root)
+    return np.real(1.0 + (p2 * np.exp(p1 * tau) - p1 * np.exp(p2 * tau)) / (p1 - p2))
+
+
 def zeta_wn_from_overshoot(overshoot: float, peak_time_s: float) -> tuple[float, float]:
     """Paper 002 eq. 10: zeta and omega_n (rad/s) from the overshoot (a fraction, 0.25 = 25 %)
     and the peak time (s) of an ideal step response."""
@@ -113,14 +123,7 @@ class StepIdentification:
         """Output (um) of the identified model to the ideal step, at times t_s (s, on the data's
         clock): y0 before t_step_s, then y0 + (y_ss - y0) times the unit step response of G/K."""
         t = np.asarray(t_s, float) - self.t_step_s
-        tau = np.clip(t, 0.0, None)
-        zeta, wn = self.zeta, self.wn_rad_s
-        if abs(zeta - 1.0) < 1e-9:
-            unit = 1.0 - np.exp(-wn * tau) * (1.0 + wn * tau)
-        else:
-            root = np.sqrt(complex(zeta**2 - 1.0))
-            p1, p2 = wn * (-zeta + root), wn * (-zeta - root)
-            unit = np.real(1.0 + (p2 * np.exp(p1 * tau) - p1 * np.exp(p2 * tau)) / (p1 - p2))
+        unit = second_order_step(t, self.zeta, self.wn_rad_s)
         return np.where(t > 0, self.y0 + (self.y_ss - self.y0) * unit, self.y0)
 
     def to_dict(self) -> dict[str, Any]:
