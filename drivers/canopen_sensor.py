@@ -167,9 +167,20 @@ class CanopenSensor:
             self._emcy.append((code, register, data[3:8]))
 
     def _supervise(self) -> None:
-        """Heartbeat consumer: mark the node lost once no heartbeat came for the consumer time."""
+        """Heartbeat consumer: mark the node lost once no heartbeat came for the consumer time.
+
+        A wake-up that comes late by more than a period means this process was stalled (a busy host,
+        a long compile holding the interpreter): heartbeats received meanwhile may still wait in the
+        receive thread's queue, so the verdict waits one more period for them to be processed rather
+        than call a node lost that only the host failed to listen to."""
         period = max(0.005, self.consumer_s / 4)
+        previous = time.monotonic()
         while not self._closed.wait(period):
+            now = time.monotonic()
+            stalled = now - previous > 2.0 * period
+            previous = now
+            if stalled:
+                continue
             try:
                 with self._cond:
                     last = self._last_heartbeat
