@@ -49,7 +49,8 @@ def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float,
         if alternative == current:
             continue
         try:
-            fitted = fit(paths, with_base(base.spec, alternative), **kw)
+            # the effects start from their fitted shape; only the new base is searched globally
+            fitted = fit(paths, with_base(base.spec, alternative), **kw, start_from=base.model)
         except UserError:
             continue  # an effect the alternative cannot carry (e.g. asymmetry on pmpi's polynomial)
         tried[alternative] = fitted.metrics["validation"]["rmse"]

@@ -104,7 +104,7 @@ def inner_rmse(result: FitResult, held_back: list[np.ndarray]) -> float:
     return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
 
 
-def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -> str:
+def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float, start_from: Any = None) -> str:
     """The first spec, unless a richer one (later in ``specs``) predicts held-back training rows
     better by RICHER_FORM_MARGIN. The inner fits train on the first INNER_SPLIT of the training
     fraction and are scored on the user's training rows they did not see (for a run split in
@@ -117,7 +117,7 @@ def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -
     assign_roles(user, None, None, train_fraction, dataset.keep)
     scores = []
     for s in specs:
-        result = fit(dataset, s, train_fraction=inner)
+        result = fit(dataset, s, train_fraction=inner, start_from=start_from)
         held_back = [r.validation & u.train for r, u in zip(result.runs, user)]
         scores.append(inner_rmse(result, held_back))
     best = min(range(1, len(specs)), key=lambda k: scores[k])
@@ -126,7 +126,9 @@ def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float) -
 
 def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:
     """``base`` refitted with ``effect`` on the user's split, in the form the data choose (a joint
-    candidate in the forms it names)."""
+    candidate in the forms it names). Every refit starts from ``base``'s fitted shape (a warm
+    start: the global scan spreads only the new effect's parameters)."""
+    kw = {**kw, "start_from": base.model}
     if is_joint(effect):
         return fit(paths, effect_specs(base.spec, effect)[0], **kw)
     if plan is not None:
@@ -136,7 +138,8 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
     if E.effect(effect).form_choice == "inner-split":
         if kw.get("train") or kw.get("test"):
             return fit(paths, specs[0], **kw)  # whole runs have roles: no training rows to hold back
-        return fit(paths, choose_by_inner_split(paths, specs, float(kw.get("train_fraction", 0.7))), **kw)
+        chosen = choose_by_inner_split(paths, specs, float(kw.get("train_fraction", 0.7)), base.model)
+        return fit(paths, chosen, **kw)
     best: FitResult | None = None
     for spec in specs:
         fitted = fit(paths, spec, **kw)

@@ -260,6 +260,7 @@ def fit(
     test: Sequence[str] | None = None,
     train_fraction: float = 0.7,
     progress: Callable[[str], None] | None = None,
+    start_from: Model | None = None,
 ) -> FitResult:
     """Fit the model ``spec`` (e.g. ``"pi"``, ``"pmpi+dynamics"``) to one or more recordings.
 
@@ -268,7 +269,9 @@ def fit(
     without them the first ``train_fraction`` of every run trains and the rest validates. Raises
     :class:`SpecError` for a spec that cannot be built (the message lists the bases, effects and
     channels available), :class:`DataError` for an unknown run, :class:`UserError` for an empty
-    training set. ``progress`` receives one-line notes of the shape search.
+    training set. ``progress`` receives one-line notes of the shape search. ``start_from``, a fitted
+    model, starts the search from its shape parameters where ``spec`` has the same ones (a refit
+    with one more effect searches globally only over the new effect's parameters).
     """
     dataset = as_dataset(path_or_paths)
     notes = list(dataset.notes)
@@ -287,7 +290,8 @@ def fit(
     if progress is not None:
         progress(f"fitting {model.spec} on {_training_size(runs)} training samples ({split})")
     active = _active(runs)
-    report = fit_model(model, [r.data for r in active], [r.train for r in active], progress=progress)
+    report = fit_model(model, [r.data for r in active], [r.train for r in active], progress=progress,
+                       start_from=start_from)
     overall = _score(runs, model)
     result = FitResult(model.spec, model, runs, overall, split, report=report, output_unit=y_unit,
                        input_unit=u_unit, notes=notes)
