@@ -477,7 +477,13 @@ class Asymmetry(Component):
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         powers = range(2, self.order() + 1)
-        return Columns.of(np.column_stack([s.v**k for k in powers]), [f"asym*v^{k}" for k in powers], hysteresis=True)
+        # successive products instead of v**k: numpy's pow for k > 2 cost more than the rest of a
+        # refit's evaluation (the columns are rebuilt at every evaluation of a shape search)
+        mat = np.empty((s.v.size, len(powers)))
+        np.multiply(s.v, s.v, out=mat[:, 0])
+        for j in range(1, len(powers)):
+            np.multiply(mat[:, j - 1], s.v, out=mat[:, j])
+        return Columns.of(mat, [f"asym*v^{k}" for k in powers], hysteresis=True)
 
 
 def tanh_flattening(x: np.ndarray) -> np.ndarray:
@@ -521,28 +527,35 @@ class Saturation(Component):
         # non-negative weights: every column is compressive (concave for v > 0, convex below), so the
         # effect can only flatten the response at large drive, never stiffen it (that would be an
         # expansive polynomial: asymmetry); actuators here rise with their input (PI weights >= 0)
-        mats = [np.column_stack([np.tanh(v / self.param("s")), sq, cb])]
         names = ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"]
         lower = [0.0, 0.0, 0.0]
         form = str(self.options.get("form", "output"))
-        if form in ("output", "knee"):
+        copies = form in ("output", "knee")
+        keeps = [(b, [j for j, name in enumerate(b.names) if name != "offset"])
+                 for b in previous if b.hysteresis] if copies else []
+        # one array for the whole block: the copies are written in place, not stacked afterwards
+        mat = np.empty((v.size, 3 + sum(len(keep) for _, keep in keeps)))
+        np.tanh(v / self.param("s"), out=mat[:, 0])
+        mat[:, 1] = sq
+        mat[:, 2] = cb
+        if copies:
             # a saturating *output*: L tanh(h / L) = h phi(h / L), phi(x) = tanh(x) / x, with h the
             # hysteresis output, about G v; so the hysteresis columns flatten by phi(v / s) at large
             # drive. As copies times (phi - 1) with their own weights the model stays linear in them.
             # The knee form flattens by phi(x) = (1 + |x|^p)^(-1/p), a knee of adjustable sharpness.
             x = v / self.param("s")
             phi = knee_flattening(x, self.param("p")) if form == "knee" else tanh_flattening(x)
-            for block in previous:
-                if block.hysteresis:
-                    keep = [j for j, name in enumerate(block.names) if name != "offset"]
-                    mats.append(block.matrix[:, keep] * (phi - 1.0)[:, None])
-                    names += [f"{block.names[j]}*(phi(v/s)-1)" for j in keep]
-                    # the copies of the linear term and of the operators (weights >= 0, the gain
-                    # rises with the input) are >= 0 too: they only take away at large drive, i.e.
-                    # flatten, never stiffen (an expansive shape is asymmetry's)
-                    lower += [0.0 if block.names[j] == "p0*v" or block.names[j].startswith("w[")
-                              else float(block.lower[j]) for j in keep]
-        return Columns.of(np.hstack(mats), names, lower=lower, hysteresis=True)
+            c = 3
+            for block, keep in keeps:
+                np.multiply(block.matrix[:, keep], (phi - 1.0)[:, None], out=mat[:, c : c + len(keep)])
+                c += len(keep)
+                names += [f"{block.names[j]}*(phi(v/s)-1)" for j in keep]
+                # the copies of the linear term and of the operators (weights >= 0, the gain
+                # rises with the input) are >= 0 too: they only take away at large drive, i.e.
+                # flatten, never stiffen (an expansive shape is asymmetry's)
+                lower += [0.0 if block.names[j] == "p0*v" or block.names[j].startswith("w[")
+                          else float(block.lower[j]) for j in keep]
+        return Columns.of(mat, names, lower=lower, hysteresis=True)
 
 
 #: elements of creep's fixed bank at most (form=bank): its columns, for a size estimate from the spec
@@ -645,11 +658,18 @@ class Creep(Component):
                 x = np.ascontiguousarray(np.hstack([b.matrix[:, keep] for b, keep in hyst]))
                 if state["lp_h"] is None:  # start in steady state, as the input's low-pass does
                     state["lp_h"] = np.repeat(x[:1], taus.size, axis=0)
+                # the drift parts go straight into the block (no stacking of copies afterwards)
+                p = x.shape[1]
+                mat = np.empty((v.size, len(cols) + taus.size * p))
+                for k, col in enumerate(cols):
+                    mat[:, k] = col
+                out = np.empty_like(x)
                 for k, tau in enumerate(taus):
-                    out = np.empty_like(x)
                     MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
-                    cols.append(out - x)
+                    c = len(cols) + k * p
+                    np.subtract(out, x, out=mat[:, c : c + p])
                     names += [f"{b.names[j]}*creep[tau={tau:.3g}s]" for b, keep in hyst for j in keep]
+                return Columns.of(mat, names)
         return Columns.of(np.column_stack(cols), names)
 
 
@@ -841,13 +861,18 @@ class AuxChannel(Component):
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
-        mats, names = [da[:, None]], [f"{self.channel}:offset"]
-        for block in previous:
-            if block.hysteresis:
-                keep = [k for k, name in enumerate(block.names) if name != "offset"]
-                mats.append(block.matrix[:, keep] * da[:, None])
-                names += [f"{block.names[k]}*d{self.channel}" for k in keep]
-        return Columns.of(np.hstack(mats), names)
+        names = [f"{self.channel}:offset"]
+        keeps = [(b, [k for k, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
+        # written into one array: stacking the copies afterwards doubled the memory traffic of
+        # the widest block of a refit
+        mat = np.empty((da.size, 1 + sum(len(keep) for _, keep in keeps)))
+        mat[:, 0] = da
+        c = 1
+        for block, keep in keeps:
+            np.multiply(block.matrix[:, keep], da[:, None], out=mat[:, c : c + len(keep)])
+            names += [f"{block.names[k]}*d{self.channel}" for k in keep]
+            c += len(keep)
+        return Columns.of(mat, names)
 
     def contribution(self, s: Signals, state: dict[str, Any], previous: list[Columns],
                      weights: np.ndarray) -> tuple[np.ndarray, int]:

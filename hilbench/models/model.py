@@ -211,23 +211,29 @@ class Model:
         Dynamics and delay are linear and time invariant, so their order does not matter; the
         delay is applied last so that only the wanted rows are computed.
         """
-        matrix = np.hstack([b.matrix for b in blocks])
         names = [n for b in blocks for n in b.names]
         lower = np.concatenate([b.lower for b in blocks])
         upper = np.concatenate([b.upper for b in blocks])
+        # Every column is filtered and delayed on its own, so the blocks are processed one by one
+        # and only the wanted rows are stacked: stacking every row first (then selecting a thinned
+        # training set) copied the whole matrix once more per evaluation of a fit.
         dyn = self.effect("dynamics")
-        if dyn is not None:
-            b, a = dyn.coefficients(run.sample_rate_hz)
-            zi = sps.lfilter_zi(b, a)  # start in steady state at each column's first value
-            matrix = MK.filter_columns(b, a, np.ascontiguousarray(matrix), np.outer(zi, matrix[0]))
+        ba = dyn.coefficients(run.sample_rate_hz) if dyn is not None else None
+        zi = sps.lfilter_zi(*ba) if ba is not None else None  # steady state at each column's first value
         delay = self.effect("delay")
-        if delay is not None:
-            d = delay.param("seconds") * run.sample_rate_hz
-            if rows is not None:
-                return MK.delay_gather(np.ascontiguousarray(matrix), rows, d), names, lower, upper
-            matrix = MK.delay_rows(np.ascontiguousarray(matrix), d)
-        if rows is not None:
-            matrix = matrix[rows]
+        d = delay.param("seconds") * run.sample_rate_hz if delay is not None else None
+        parts = []
+        for block in blocks:
+            m = block.matrix
+            if ba is not None:
+                m = MK.filter_columns(ba[0], ba[1], np.ascontiguousarray(m), np.outer(zi, m[0]))
+            if d is not None:
+                m = MK.delay_gather(np.ascontiguousarray(m), rows, d) if rows is not None \
+                    else MK.delay_rows(np.ascontiguousarray(m), d)
+            elif rows is not None:
+                m = m[rows]
+            parts.append(m)
+        matrix = parts[0] if len(parts) == 1 else np.hstack(parts)
         return np.ascontiguousarray(matrix), names, lower, upper
 
     # -- simulation ----------------------------------------------------------------------------------

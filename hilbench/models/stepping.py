@@ -210,7 +210,7 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     # -- asymmetry: v^2 .. v^order ----------------------------------------------------------------
     c = row + I[I_NB]
     for k in range(2, I[I_ASYM] + 1):
-        X[c] = v * v if k == 2 else v ** float(k)
+        X[c] = v * v if k == 2 else X[c - 1] * v  # successive products, as the block columns
         c += 1
     # the hysteresis columns that are not the offset, in order (the modulated effects' inputs)
     xk = I[I_X_XK]
