@@ -323,7 +323,10 @@ class Model:
         model.sample_rate_hz = float(data.get("sample_rate_hz", 0.0))
         model.norm = dict(data.get("normalisation", {}))
         for component, saved in zip(model.components, data["components"]):
-            component.load_dict(saved)
+            try:
+                component.load_dict(saved)
+            except UserError as exc:  # name the file: the component does not know it
+                raise UserError(exc.message, where=exc.where or where, hint=exc.hint) from None
         weights = data["parameters"]["weights"]
         model.weight_names = [w["name"] for w in weights]
         model.weights = np.array([float(w["value"]) for w in weights])

@@ -82,5 +82,6 @@ def test_a_model_file_with_the_old_copies_is_refused_with_one_line(tmp_path):
         if comp["name"] == "rate-dependence":
             comp["shape"] = [p for p in comp["shape"] if p["name"] == "m"]  # as written before the gain
     path.write_text(json.dumps(doc))
-    with pytest.raises(UserError, match="older layout.*fit the model again"):
+    with pytest.raises(UserError, match="older layout.*fit the model again") as info:
         Model.load(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)  # one line naming the file
