@@ -263,19 +263,21 @@ class Model:
                            run.sample_rate_hz)
             s = self._signals(part, self._delayed(part), u_before)
             blocks: list[Columns] = []
-            first: list[int] = []  # each block's first weight
             acc = np.zeros(stop - start)
             k = 0
             for c, state in zip(self.components, states):
+                contribution = getattr(c, "contribution", None)
+                if contribution is not None:  # modulating effects: no n x p copies
+                    vec, used = contribution(s, state, blocks, self.weights[k:])
+                    acc += vec
+                    k += used
+                    continue
                 block = c.columns(s, state, blocks)
                 if block is not None:
                     blocks.append(block)
-                    first.append(k)
-                    k += block.matrix.shape[1]
-            # weighted once every component has had its say: rate-dependence and aux channels scale
-            # the hysteresis blocks before them in place (a gain times y_RI, 003 eq. 9)
-            for block, k0 in zip(blocks, first):
-                acc += block.matrix @ self.weights[k0 : k0 + block.matrix.shape[1]]
+                    p = block.matrix.shape[1]
+                    acc += block.matrix @ self.weights[k : k + p]
+                    k += p
             h[start:stop] = acc
             u_before = float(run.input[stop - 1])
         h = self._delay_rows(h[:, None], run.sample_rate_hz)[:, 0]
@@ -323,10 +325,7 @@ class Model:
         model.sample_rate_hz = float(data.get("sample_rate_hz", 0.0))
         model.norm = dict(data.get("normalisation", {}))
         for component, saved in zip(model.components, data["components"]):
-            try:
-                component.load_dict(saved)
-            except UserError as exc:  # name the file: the component does not know it
-                raise UserError(exc.message, where=exc.where or where, hint=exc.hint) from None
+            component.load_dict(saved)
         weights = data["parameters"]["weights"]
         model.weight_names = [w["name"] for w in weights]
         model.weights = np.array([float(w["value"]) for w in weights])
