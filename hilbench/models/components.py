@@ -72,6 +72,27 @@ class Signals:
     aux: dict[str, np.ndarray]
     fs: float
     norm: dict[str, Any]
+    #: the first row of each run joined here (training runs are joined for ``prepare``): no rate or
+    #: turning point is measured across a junction, where the input jumps from one run to the next
+    starts: tuple[int, ...] = (0,)
+
+    def pieces(self) -> list[slice]:
+        """The rows of each joined run."""
+        edges = [*self.starts, self.v.size]
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+    def turning_point_frequency(self) -> tuple[np.ndarray, np.ndarray]:
+        """The drive frequency (Hz) and amplitude at every row from the last turning points, each
+        joined run measured on its own."""
+        f = np.zeros_like(self.v)
+        a = np.zeros_like(self.v)
+        v = np.ascontiguousarray(self.v)
+        for rows in self.pieces():
+            f_part = np.empty(rows.stop - rows.start)
+            a_part = np.empty_like(f_part)
+            MK.turning_point_frequency(np.ascontiguousarray(v[rows]), self.fs, np.zeros(MK.N_TP), f_part, a_part)
+            f[rows], a[rows] = f_part, a_part
+        return f, a
 
 
 class Component:
@@ -719,20 +740,15 @@ class RateDependence(Component):
     def prepare(self, s: Signals) -> None:
         if "form" not in self.constants:
             form = str(self.options.get("form", "auto"))
+            f_est, _ = s.turning_point_frequency()
             if form == "auto":
-                f = np.empty_like(s.v)
-                a = np.empty_like(s.v)
-                MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f, a)
-                levels = f[f > 0]
+                levels = f_est[f_est > 0]
                 spread = np.percentile(levels, 95) / max(np.percentile(levels, 5), 1e-12) if levels.size else 1.0
                 form = "frequency" if spread > 1.5 else "damping"
             self.constants["form"] = form
             self.constants["order"] = int(self.options.get("order", 3))
             rate = np.abs(s.vdot)
             self.constants["rate_ref"] = float(np.sqrt(np.mean(rate**2))) or 1.0
-            f_est = np.empty_like(s.v)
-            a_est = np.empty_like(s.v)
-            MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f_est, a_est)
             self.constants["f_ref"] = float(np.max(f_est)) or 1.0
             # Beyond the training rates the damping extrapolates as its power law (viscous damping ~
             # velocity, 003 eq. 6): held at the largest training rate, it would remove none of the

@@ -126,14 +126,22 @@ class Model:
             return x
         return MK.delay_rows(np.ascontiguousarray(x), delay.param("seconds") * fs)
 
+    def _joined_signals(self, runs: list[RunData], u: np.ndarray) -> Signals:
+        """The training runs joined, each run's first rate zero (nothing is measured across a junction)."""
+        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
+                         self.sample_rate_hz)
+        signals = self._signals(joined, u)
+        starts = np.cumsum([0] + [len(r.input) for r in runs[:-1]])
+        signals.vdot[starts] = 0.0
+        signals.starts = tuple(int(i) for i in starts)
+        return signals
+
     def prepare(self, runs: list[RunData]) -> None:
         """Set normalisation and data-dependent constants from training runs (before fitting)."""
         u = np.concatenate([r.input for r in runs])
         self.sample_rate_hz = runs[0].sample_rate_hz
         self.norm.setdefault("u_scale", float(np.max(np.abs(u))) or 1.0)
-        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
-                         self.sample_rate_hz)
-        signals = self._signals(joined, u)
+        signals = self._joined_signals(runs, u)
         for c in self.components:
             c.prepare(signals)
             c.fix_from_options()
@@ -141,9 +149,7 @@ class Model:
     def finalize(self, runs: list[RunData]) -> None:
         """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds)."""
         u = np.concatenate([r.input for r in runs])
-        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
-                         self.sample_rate_hz)
-        signals = self._signals(joined, u)
+        signals = self._joined_signals(runs, u)
         for c in self.components:
             c.finalize(signals)
 

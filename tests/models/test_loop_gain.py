@@ -85,3 +85,22 @@ def test_a_model_file_with_the_old_copies_is_refused_with_one_line(tmp_path):
     with pytest.raises(UserError, match="older layout.*fit the model again") as info:
         Model.load(path)
     assert str(path) in str(info.value) and "\n" not in str(info.value)  # one line naming the file
+
+
+def test_joined_training_runs_are_measured_each_on_its_own():
+    """Training runs are joined for prepare; the jump from one run's end to the next's start is no
+    rate and no turning point: the frequency reference is the fastest run's drive frequency, and the
+    rate guard the fastest run's rate (a junction gave 12.5 kHz from 10-1500 Hz runs and left the
+    gain polynomial no reach)."""
+    runs = []
+    for f_hz in (10.0, 200.0, 1500.0):
+        t = np.arange(int(4 * 50_000 / f_hz)) / 50_000
+        u = 70.0 - 50.0 * np.cos(2 * np.pi * f_hz * t)
+        u = u[: int(0.7 * u.size)]  # the training part: the first 70 % of each run ends mid-cycle
+        runs.append(RunData(u, u.copy(), {}, 50_000.0, f"{f_hz:g} Hz"))
+    model = Model("pi1+rate-dependence(form=frequency)")
+    model.prepare(runs)
+    rate = model.effect("rate-dependence").constants
+    assert rate["f_ref"] == pytest.approx(1500.0, rel=0.02)
+    fastest = 2 * np.pi * 1500.0 * 50.0 / 120.0  # the 1500 Hz sine's peak rate, normalised (1/s)
+    assert rate["vdot_max"] == pytest.approx(fastest, rel=0.05)
