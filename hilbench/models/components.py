@@ -142,6 +142,11 @@ class Component:
         return {}
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns | None:
+        """This component's regressor block of one run (or block), its memory carried in ``state``.
+
+        The contract the shape search relies on (decision 0020): the block depends on the signals,
+        the state, this component's shape parameters and constants and the ``previous`` blocks only.
+        A loop gain may scale earlier hysteresis blocks in place; nothing else writes to them."""
         raise NotImplementedError
 
     # -- persistence ----------------------------------------------------------------------------
