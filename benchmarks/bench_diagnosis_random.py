@@ -22,7 +22,8 @@ Prints one JSON document on stdout (progress on stderr):
   significant effect ranked first (columns; ``nothing`` when none is significant);
   ``confusion_auto_first``: hidden vs the first effect ``--auto`` added;
 * ``rates``: hidden effect ranked first and significant (single and two-effect cases: first is one
-  of the hidden), clean cases with nothing significant, median error reduction of ``--auto`` where
+  of the hidden, or a pair judged jointly whose members are both hidden; a pair with a member that
+  is not hidden is a miss), clean cases with nothing significant, median error reduction of ``--auto`` where
   an effect is hidden, share of those with a reduction of 3x or more; per effect and per form;
 * ``targets`` (issue): ranked first >= 95 %, clean with nothing flagged >= 95 %, median --auto
   reduction >= 3x; ``meets_target`` flags;
@@ -121,6 +122,11 @@ def _first_flag(r: dict[str, Any]) -> str:
     return r["significant"][0] if r.get("significant") else "nothing"
 
 
+def _names_hidden(candidate: str, hidden: list[str]) -> bool:
+    """Whether a candidate (an effect, or a pair ``a+b`` judged jointly) names hidden effects only."""
+    return all(part in hidden for part in candidate.split("+"))
+
+
 def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
     ok = [r for r in results if "error" not in r]
     confusion: dict[str, Counter] = defaultdict(Counter)
@@ -131,7 +137,12 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
             confusion_auto[_hidden_key(r)][(r["auto_added"] or ["nothing"])[0]] += 1
 
     def hit(r: dict[str, Any]) -> bool:
-        return bool(r.get("significant")) and r["significant"][0] in r["hidden"] and r.get("ranked_first") == r["significant"][0]
+        """The first candidate is significant and names hidden effects only: one of them, or a pair
+        (``a+b``, judged jointly) both of whose members are hidden. A pair with a member that is not
+        hidden is a miss, even when the other member is."""
+        if not r.get("significant") or r.get("ranked_first") != r["significant"][0]:
+            return False
+        return _names_hidden(r["significant"][0], r["hidden"])
 
     hidden = [r for r in ok if r["kind"] != "clean"]
     clean = [r for r in ok if r["kind"] == "clean"]
@@ -156,12 +167,13 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
         "hidden_ranked_first_and_significant": rate([hit(r) for r in hidden]),
         "hidden_ranked_first_single": rate([hit(r) for r in hidden if r["kind"] == "single"]),
         "hidden_ranked_first_two_effect": rate([hit(r) for r in hidden if r["kind"] == "two"]),
-        "hidden_is_significant_anywhere": rate([any(h in r.get("significant", []) for h in r["hidden"]) for r in hidden]),
+        "hidden_is_significant_anywhere": rate([any(h in c.split("+") for c in r.get("significant", []) for h in r["hidden"])
+                                                 for r in hidden]),
         "clean_nothing_flagged": rate([not r.get("significant") for r in clean]),
         "clean_nothing_added_by_auto": rate([not r["auto_added"] for r in auto_clean]),
         "median_auto_reduction_where_hidden": statistics.median(red) if red else None,
         "share_auto_reduction_3x_or_more": rate([x >= 3.0 for x in red]),
-        "auto_added_a_hidden_effect_first": rate([bool(r["auto_added"]) and r["auto_added"][0] in r["hidden"]
+        "auto_added_a_hidden_effect_first": rate([bool(r["auto_added"]) and _names_hidden(r["auto_added"][0], r["hidden"])
                                                    for r in hidden if "auto_added" in r]),
         "n_hidden": len(hidden), "n_clean": len(clean), "n_auto_hidden": len(red), "n_auto_clean": len(auto_clean),
         "n_errors": len(results) - len(ok),

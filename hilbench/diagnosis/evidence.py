@@ -154,6 +154,18 @@ SIGNATURES: dict[str, Callable[[str, ResidualRows], tuple[str, dict[str, Any]]]]
     "channel": _channel,
 }
 
+#: signature -> the signatures whose regressors it contains. A nested pattern explains at least as
+#: much of any residual (the derivatives' fit includes the rate of change's column), so its larger
+#: fraction says nothing about which effect is there: a tie between the two stays in gain order.
+NESTED_SIGNATURES: dict[str, frozenset[str]] = {"derivatives": frozenset({"rate-of-change"})}
+
+
+def nested(a: str | None, b: str | None) -> bool:
+    """Whether one of the signatures ``a``, ``b`` contains the other's regressors."""
+    return (a is not None and b is not None
+            and (b in NESTED_SIGNATURES.get(a, frozenset()) or a in NESTED_SIGNATURES.get(b, frozenset())))
+
+
 @dataclass(frozen=True)
 class EvidenceCheck:
     key: str  # the name of the check in a verdict's ``checks``

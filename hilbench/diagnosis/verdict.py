@@ -24,7 +24,7 @@ from scipy import stats
 
 from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain
+from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain, nested
 from hilbench.diagnosis.rate_calibration import RatePlan
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import ResidualRows
@@ -254,6 +254,11 @@ def judge(paths: Any, base: FitResult, effect: str, rows: ResidualRows, noise: f
                      unit=base.output_unit)
 
 
+def _signature_name(effect: str) -> str | None:
+    """The registry's residual pattern of a single effect (none for a pair or the base check)."""
+    return E.EFFECTS[effect].signature if effect in E.EFFECTS else None
+
+
 def rank(cands: list[Candidate]) -> None:
     """Order candidates in place: significant first, then by expected gain. When the best one's
     validation error cannot be told from another significant candidate's (block test both ways,
@@ -261,7 +266,9 @@ def rank(cands: list[Candidate]) -> None:
     decides: the candidate whose ``signature`` (fraction of the error's variance its physical
     pattern explains, e.g. even in the input for asymmetry, odd for saturation) is higher by at
     least SIGNATURE_MARGIN goes first. A cubic term mimics saturation on a bipolar drive, so
-    without this asymmetry and saturation are a coin toss on saturating data."""
+    without this asymmetry and saturation are a coin toss on saturating data. Nested patterns
+    (:data:`hilbench.diagnosis.evidence.NESTED_SIGNATURES`: dynamics' derivatives contain a delay's
+    rate of change) do not decide: the richer one explains more of any residual."""
     cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
     if not cands or not cands[0].significant or cands[0].fitted is None:
         return
@@ -279,6 +286,8 @@ def rank(cands: list[Candidate]) -> None:
         p_top_better, _, _ = block_test(e_c, e_top)
         if p_top_better < T.P_MAX:
             continue  # the data tell them apart: gain order stands
+        if nested(_signature_name(top.effect), _signature_name(c.effect)):
+            continue  # the richer pattern always explains more (a delay's residual has derivatives too)
         if "signature" in c.evidence and c.evidence["signature"] >= best.evidence["signature"] + T.SIGNATURE_MARGIN:
             best, best_p = c, p_top_better
     if best is not top:

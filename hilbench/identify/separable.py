@@ -12,10 +12,11 @@ filters), the least-squares residual is the free-run simulation error, not a one
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -92,8 +93,7 @@ class _Problem:
         masks = [m & np.isfinite(r.output) for r, m in zip(runs, masks)]
         # runs after the last one with training rows cannot influence the fit
         last = max((i for i, m in enumerate(masks) if m.any()), default=-1)
-        self.runs = runs[: last + 1]
-        self.masks = masks[: last + 1]
+        self.runs, self.masks = _through_last_training_row(runs[: last + 1], masks[: last + 1])
         total = sum(int(m.sum()) for m in self.masks)
         if max_rows is not None and total > max_rows:
             stride = int(math.ceil(total / max_rows))
@@ -103,8 +103,8 @@ class _Problem:
                 keep[np.flatnonzero(m)[::stride]] = True
                 thinned.append(keep)
             self.masks = thinned
-        self.train_parts = _training_parts(model, runs, self.masks)
-        self.y = np.concatenate([r.output[m] for r, m in zip(runs, self.masks)])
+        self.train_parts = _training_parts(model, self.runs, self.masks)
+        self.y = np.concatenate([r.output[m] for r, m in zip(self.runs, self.masks)])
         if self.y.size == 0:
             raise UserError("the training set is empty: no samples with a finite output")
         # fixed parameters (lower == upper, set by spec options) are not searched
@@ -118,6 +118,7 @@ class _Problem:
         self._dynamic_ids = {id(p) for e in post for p in e.shape()}
         self._static_key: tuple[float, ...] | None = None
         self._static_blocks: list[Any] = []
+        self._columns = _ColumnCache(model, self.runs)
 
     # theta <-> search variables (log scale where declared)
     def to_x(self, theta: np.ndarray) -> np.ndarray:
@@ -138,7 +139,7 @@ class _Problem:
     def design(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]:
         key = tuple(p.value for p in self.params if id(p) not in self._dynamic_ids)
         if key != self._static_key:
-            self._static_blocks = [blocks for _, blocks in self.model._sequence(self.runs)]
+            self._static_blocks = self._columns.sequence()
             self._static_key = key
         rows, lower, upper, names = [], None, None, []
         for run, blocks, mask in zip(self.runs, self._static_blocks, self.masks):
@@ -166,6 +167,74 @@ class _Problem:
         if not math.isfinite(sol.sse):
             return np.full(self.y.shape, 1e6 * (float(np.std(self.y)) + 1.0))
         return A @ sol.weights - self.y
+
+
+def _through_last_training_row(runs: list[RunData], masks: list[np.ndarray]) -> tuple[list[RunData], list[np.ndarray]]:
+    """Each run cut after its last training row, unless the next run carries its memory on: the
+    columns are causal, so the rows after it (a 70/30 split's validation part) change no training
+    row, and the search need not compute them at every evaluation."""
+    cut_runs, cut_masks = [], []
+    for k, (run, mask) in enumerate(zip(runs, masks)):
+        chained = k + 1 < len(runs) and runs[k + 1].chain
+        rows = np.flatnonzero(mask)
+        end = len(run) if chained or rows.size == 0 else int(rows[-1]) + 1
+        if end < len(run):
+            run = replace(run, input=run.input[:end], output=None if run.output is None else run.output[:end],
+                          aux={c: a[:end] for c, a in run.aux.items()})
+            mask = mask[:end]
+        cut_runs.append(run)
+        cut_masks.append(mask)
+    return cut_runs, cut_masks
+
+
+class _ColumnCache:
+    """The static blocks of the search's runs, each component's block kept with the shape it was
+    computed for and reused while the shape of that component and of every one before it is
+    unchanged (a block depends on those alone: on the earlier blocks and its own parameters).
+
+    A finite-difference Jacobian moves one parameter at a time, so the components before the moved
+    one are not recomputed (creep's low-passes of every hysteresis column while a later effect's
+    parameter moves, say). Blocks a later component scales in place (a loop gain, decision 0018)
+    are handed out as copies; the memory each component ends a run with is kept with its block, so
+    a chained run starts from it as if it had been computed."""
+
+    def __init__(self, model: Model, runs: list[RunData]):
+        self.model = model
+        self.runs = runs
+        self.entries: dict[tuple[int, int], tuple[tuple[float, ...], Any, dict[str, Any]]] = {}
+
+    def _prefix_keys(self) -> list[tuple[float, ...]]:
+        keys, values = [], []
+        for c in self.model.components:
+            values += [p.value for p in c.shape()]
+            keys.append(tuple(values))
+        return keys
+
+    def sequence(self) -> list[list[Any]]:
+        model = self.model
+        keys = self._prefix_keys()
+        out = []
+        for r, (run, states) in enumerate(model._walk(self.runs)):
+            signals = None
+            blocks: list[Any] = []
+            for i, (c, state) in enumerate(zip(model.components, states)):
+                hit = self.entries.get((r, i))
+                if hit is not None and hit[0] == keys[i]:
+                    block = hit[1]
+                    if block is not None and block.hysteresis:
+                        block = replace(block, matrix=block.matrix.copy())
+                    state.clear()
+                    state.update(copy.deepcopy(hit[2]))
+                else:
+                    if signals is None:
+                        signals = model._signals(run, model._delayed(run))
+                    block = c.columns(signals, state, blocks)
+                    kept = block if block is None or not block.hysteresis else replace(block, matrix=block.matrix.copy())
+                    self.entries[(r, i)] = (keys[i], kept, copy.deepcopy(state))
+                if block is not None:
+                    blocks.append(block)
+            out.append(blocks)
+        return out
 
 
 def _copy_shape(source: Model, target: Model) -> set[int]:

@@ -7,7 +7,8 @@ exponents, Duhem alpha, dynamics poles, creep time constants, ...) are fixed:
 
 ``Phi`` stacks the columns of the base (operators, linear and constant terms) and of the effects
 (polynomial, saturating, creep, velocity-damping and auxiliary-channel columns, and modulated copies
-of the hysteresis columns); ``G_dyn`` is the optional linear dynamics with unit static gain. This is
+of the hysteresis columns); rate-dependence and auxiliary channels scale the hysteresis columns by
+one gain instead (a shape parameter, decisions 0018 and 0019); ``G_dyn`` is the optional linear dynamics with unit static gain. This is
 what makes identification exact and fast (separable least squares, :mod:`hilbench.identify`).
 
 Inputs are normalised, ``v = u / u_scale`` with ``u_scale = max |u|`` of the training data, so
@@ -71,6 +72,27 @@ class Signals:
     aux: dict[str, np.ndarray]
     fs: float
     norm: dict[str, Any]
+    #: the first row of each run joined here (training runs are joined for ``prepare``): no rate or
+    #: turning point is measured across a junction, where the input jumps from one run to the next
+    starts: tuple[int, ...] = (0,)
+
+    def pieces(self) -> list[slice]:
+        """The rows of each joined run."""
+        edges = [*self.starts, self.v.size]
+        return [slice(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+    def turning_point_frequency(self) -> tuple[np.ndarray, np.ndarray]:
+        """The drive frequency (Hz) and amplitude at every row from the last turning points, each
+        joined run measured on its own."""
+        f = np.zeros_like(self.v)
+        a = np.zeros_like(self.v)
+        v = np.ascontiguousarray(self.v)
+        for rows in self.pieces():
+            f_part = np.empty(rows.stop - rows.start)
+            a_part = np.empty_like(f_part)
+            MK.turning_point_frequency(np.ascontiguousarray(v[rows]), self.fs, np.zeros(MK.N_TP), f_part, a_part)
+            f[rows], a[rows] = f_part, a_part
+        return f, a
 
 
 class Component:
@@ -120,6 +142,11 @@ class Component:
         return {}
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns | None:
+        """This component's regressor block of one run (or block), its memory carried in ``state``.
+
+        The contract the shape search relies on (decision 0020): the block depends on the signals,
+        the state, this component's shape parameters and constants and the ``previous`` blocks only.
+        A loop gain may scale earlier hysteresis blocks in place; nothing else writes to them."""
         raise NotImplementedError
 
     # -- persistence ----------------------------------------------------------------------------
@@ -673,24 +700,38 @@ class Creep(Component):
         return Columns.of(np.column_stack(cols), names)
 
 
+#: A gain on the loop (rate-dependence's k, an aux channel's) is held at or above this fraction of
+#: the rest gain: an actuator's loop does not vanish or invert at any rate, temperature or load (a
+#: floor, not a fit: the search keeps the gain positive on the training rows)
+GAIN_FLOOR = 0.05
+
 #: A change of this fraction of the input span within one sample is a step (as the diagnosis counts
 #: steps): the rate terms hold the input rate at that slope.
 STEP_SPAN_FRACTION = 0.05
 
 
 class RateDependence(Component):
-    """003: m-th power velocity damping, and gains that change with the drive frequency.
+    """003: m-th power velocity damping, and a hysteresis gain that changes with the input rate.
 
-    form = damping: adds c sgn(v') |v'/Q|^m (eq. 6) and rate-weighted copies of the hysteresis
-    columns (weights varying linearly with |v'|, 003 refs. 16-17).
-    form = frequency: k(f) and c(f) polynomials of the drive frequency f estimated from the input's
-    turning points (eq. 8-13): hysteresis columns times f^j, damping columns f^j sgn(v')|v'/Q(f)|^m.
+    The rate-independent hysteresis y_RI (every hysteresis column but the offset) is scaled by one
+    gain and a damping term is added, 003 eq. 9: ``y = k * y_RI + c * y_MD``.
+
+    form = damping: k = 1 + g |v'|/Q (g searched: the relative gain change per reference rate Q, the
+    training's rms rate; 003 refs. 16-17 weight the loop linearly with |v'|) and
+    y_MD = sgn(v') |v'/Q|^m (eq. 6), one column.
+    form = frequency: k(f) = 1 + sum_j k_j f^j (j = 1..order, the k_j searched) and c(f) =
+    sum_j c_j f^j (j = 0..order-1, weights) with y_MD = sgn(v') |v' / (2 pi f a)|^m, f and a the
+    drive frequency and amplitude estimated from the input's turning points (eq. 8-13).
     form = auto: frequency when the training data hold several drive frequencies, else damping.
     waveform = triangle applies the harmonic weights of eq. 14-16 to the frequency polynomials.
+
+    The gain is one factor on the whole loop, not a copy of every hysteresis column with its own
+    weight: the copies made the fit ill-posed (weights of +-1e4 cancelling each other, a training
+    fit at the noise and a validation error ten times the base's; decision 0018).
     """
 
     name = "rate-dependence"
-    summary = "loop width and gain change with input rate: velocity damping, frequency polynomials (003)"
+    summary = "loop gain and width change with input rate: velocity damping, frequency polynomials (003)"
     options_schema = {"form": Option("choice", default="auto", choices=("auto", "damping", "frequency"),
                                      doc="damping (003 eq. 6), frequency (k(f), c(f), eq. 8-13) or auto"),
                       "order": Option("int", default=3, minimum=1, maximum=8, doc="order of the frequency polynomials"),
@@ -700,25 +741,19 @@ class RateDependence(Component):
                       "m": Option("number", minimum=0.0, exclusive_minimum=True, maximum=10.0,
                                   doc="damping exponent, fixed instead of searched")}
 
+
     def prepare(self, s: Signals) -> None:
-        if not self.params:
-            self.params = [ShapeParam("m", 1.0, 0.2, 3.0, doc="damping exponent (003 eq. 6)")]
         if "form" not in self.constants:
             form = str(self.options.get("form", "auto"))
+            f_est, _ = s.turning_point_frequency()
             if form == "auto":
-                f = np.empty_like(s.v)
-                a = np.empty_like(s.v)
-                MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f, a)
-                levels = f[f > 0]
+                levels = f_est[f_est > 0]
                 spread = np.percentile(levels, 95) / max(np.percentile(levels, 5), 1e-12) if levels.size else 1.0
                 form = "frequency" if spread > 1.5 else "damping"
             self.constants["form"] = form
             self.constants["order"] = int(self.options.get("order", 3))
             rate = np.abs(s.vdot)
             self.constants["rate_ref"] = float(np.sqrt(np.mean(rate**2))) or 1.0
-            f_est = np.empty_like(s.v)
-            a_est = np.empty_like(s.v)
-            MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, np.zeros(MK.N_TP), f_est, a_est)
             self.constants["f_ref"] = float(np.max(f_est)) or 1.0
             # Beyond the training rates the damping extrapolates as its power law (viscous damping ~
             # velocity, 003 eq. 6): held at the largest training rate, it would remove none of the
@@ -733,6 +768,26 @@ class RateDependence(Component):
             self.constants["vdot_max"] = guard or 1.0
             self.constants["waveform"] = str(self.options.get("waveform", "sine"))
             self.constants["harmonics"] = int(self.options.get("harmonics", 9))
+        if not self.params:
+            self.params = [ShapeParam("m", 1.0, 0.2, 3.0, doc="damping exponent (003 eq. 6)")]
+            if self.constants["form"] == "damping":
+                # the gain may fall with rate, but not below GAIN_FLOOR at the training's
+                # fastest (unclipped) rate, and rises at most 2x per reference rate
+                r_max = float(np.max(np.abs(self.limited(s)[0]))) / float(self.constants["rate_ref"]) if s.v.size else 1.0
+                lower = -(1.0 - GAIN_FLOOR) / max(r_max, 1.0)
+                self.params.append(ShapeParam("g", 0.0, lower, 2.0, "per reference rate",
+                                              doc="relative hysteresis gain change per reference rate Q"))
+            else:
+                self.params += [ShapeParam(f"k_{j}", 0.0, -2.0, 2.0, doc=f"gain polynomial k(f), coefficient of f^{j}")
+                                for j in range(1, int(self.constants["order"]) + 1)]
+
+    def load_dict(self, data: dict[str, Any]) -> None:
+        super().load_dict(data)
+        names = {p.name for p in self.params}
+        if self.constants.get("form") in ("damping", "frequency") and not names & {"g", "k_1"}:
+            raise UserError("rate-dependence was saved in an older layout (a weighted copy of every "
+                            "hysteresis column), which one gain on the loop replaced: fit the model again",
+                            hint="hilbench fit DATA.h5 --model SPEC -o FIT.json")
 
     def new_state(self) -> dict[str, Any]:
         return {"tp": np.zeros(MK.N_TP)}
@@ -756,20 +811,20 @@ class RateDependence(Component):
         fn = None if f is None else np.minimum(f / float(self.constants["f_ref"]), 1.0)
         return vdot, fn
 
+    def gain_coefficients(self) -> np.ndarray:
+        """damping: [g]; frequency: [k_1 .. k_order]."""
+        if self.constants["form"] == "damping":
+            return np.array([self.param("g")])
+        return np.array([self.param(f"k_{j}") for j in range(1, int(self.constants["order"]) + 1)])
+
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         m = self.param("m")
         sgn = np.sign(s.vdot)
-        hyst = [c for c in previous if c.hysteresis]
         if self.constants["form"] == "damping":
-            q = float(self.constants["rate_ref"])
-            rate = np.abs(self.limited(s)[0]) / q
-            mats = [(sgn * rate**m)[:, None]]
-            names = ["c*sgn(v')|v'/Q|^m"]
-            for block in hyst:
-                keep = [j for j, name in enumerate(block.names) if name != "offset"]
-                mats.append(block.matrix[:, keep] * rate[:, None])
-                names += [f"{block.names[j]}*|v'|/Q" for j in keep]
-            return Columns.of(np.hstack(mats), names)
+            rate = np.abs(self.limited(s)[0]) / float(self.constants["rate_ref"])
+            gain = 1.0 + self.param("g") * rate
+            _scale_hysteresis(previous, np.maximum(gain, GAIN_FLOOR))
+            return Columns.of((sgn * rate**m)[:, None], ["c*sgn(v')|v'/Q|^m"])
         f = np.empty_like(s.v)
         a = np.empty_like(s.v)
         MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
@@ -779,71 +834,44 @@ class RateDependence(Component):
             md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
         moments = self.harmonic_moments()
         order = int(self.constants["order"])
-        mats, names = [], []
+        gain = np.ones_like(s.v)
+        power = np.ones_like(s.v)
+        for j, kj in enumerate(self.gain_coefficients(), start=1):
+            power = power * fn
+            gain += kj * moments[j] * power
+        _scale_hysteresis(previous, np.maximum(gain, GAIN_FLOOR))
+        mat = np.empty((s.v.size, order))
+        power = np.ones_like(s.v)
         for j in range(order):
-            mats.append((md * (fn**j * moments[j]))[:, None])
-            names.append(f"c{j}*f^{j}*y_MD")
-        for j in range(1, order + 1):
-            factor = (fn**j * moments[j])[:, None]  # once per power, not per column
-            for block in hyst:
-                mats.append(block.matrix * factor)
-                names += [f"{name}*f^{j}" for name in block.names]
-        return Columns.of(np.hstack(mats), names)
+            np.multiply(md, power * moments[j], out=mat[:, j])
+            power = power * fn
+        return Columns.of(mat, [f"c{j}*f^{j}*y_MD" for j in range(order)])
 
 
-def _modulated_sum(hyst: list[Columns], weights: np.ndarray, skip_offset: bool) -> tuple[np.ndarray, int]:
-    """Sum over the hysteresis blocks of their columns times consecutive weights (the layout of the
-    modulated copies), and how many weights that took."""
-    total = None
-    k = 0
-    for block in hyst:
-        keep = [j for j, name in enumerate(block.names) if not (skip_offset and name == "offset")]
-        part = block.matrix[:, keep] @ weights[k : k + len(keep)]
-        total = part if total is None else total + part
-        k += len(keep)
-    return (total if total is not None else 0.0), k
-
-
-def _rate_contribution(self: RateDependence, s: Signals, state: dict[str, Any], previous: list[Columns],
-                       weights: np.ndarray) -> tuple[np.ndarray, int]:
-    """Simulation without materialising the modulated columns: the modulating signal times one
-    weighted sum of the hysteresis columns per modulation (same result as columns() @ weights)."""
-    m = self.param("m")
-    sgn = np.sign(s.vdot)
-    hyst = [b for b in previous if b.hysteresis]
-    if self.constants["form"] == "damping":
-        rate = np.abs(self.limited(s)[0]) / float(self.constants["rate_ref"])
-        total, k = _modulated_sum(hyst, weights[1:], skip_offset=True)
-        return weights[0] * sgn * rate**m + rate * total, 1 + k
-    f = np.empty_like(s.v)
-    a = np.empty_like(s.v)
-    MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
-    vdot, fn = self.limited(s, f)
-    q = 2.0 * np.pi * f * a
-    with np.errstate(divide="ignore", invalid="ignore"):
-        md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
-    moments = self.harmonic_moments()
-    order = int(self.constants["order"])
-    out = np.zeros_like(s.v)
-    for j in range(order):
-        out += weights[j] * md * (fn**j * moments[j])
-    k = order
-    for j in range(1, order + 1):
-        total, used = _modulated_sum(hyst, weights[k:], skip_offset=False)
-        out += (fn**j * moments[j]) * total
-        k += used
-    return out, k
-
-
-RateDependence.contribution = _rate_contribution  # type: ignore[attr-defined]
+def _scale_hysteresis(blocks: list[Columns], gain: np.ndarray) -> None:
+    """Scale every hysteresis column but the offset by ``gain`` (one value per row), in place: the
+    rate-independent loop y_RI times k (003 eq. 9). The blocks are this evaluation's own arrays."""
+    for block in blocks:
+        if not block.hysteresis:
+            continue
+        keep = [j for j, name in enumerate(block.names) if name != "offset"]
+        if len(keep) == block.matrix.shape[1]:
+            block.matrix *= gain[:, None]
+        else:
+            block.matrix[:, keep] *= gain[:, None]
 
 
 class AuxChannel(Component):
     """Dependence on a recorded auxiliary channel a (temperature, load, ...): an offset proportional
-    to a - a_ref (thermal strain, load compliance) and gain changes of the hysteresis columns."""
+    to a - a_ref (thermal strain, load compliance) and a gain on the whole loop, ``1 + g (a - a_ref) /
+    a_std`` (the piezoelectric coefficient's change with temperature, the stiffening under load), as
+    rate-dependence's gain (decision 0018): one shape parameter g, not a weighted copy of every
+    hysteresis column (decision 0019)."""
 
     role = "effect"
     summary = "dependence on a recorded channel: offset and gain proportional to its change"
+    #: the gain's change per standard deviation of the channel in training, at most (either sign)
+    MAX_GAIN_PER_STD = 0.5
 
     def __init__(self, channel: str, options: dict[str, Any] | None = None):
         super().__init__(options)
@@ -858,28 +886,21 @@ class AuxChannel(Component):
             a = s.aux[self.channel]
             self.constants["reference"] = float(np.nanmean(a))
             self.constants["scale"] = float(np.nanstd(a)) or 1.0
+        if not self.params:
+            self.params = [ShapeParam("g", 0.0, -self.MAX_GAIN_PER_STD, self.MAX_GAIN_PER_STD, "per channel std",
+                                      doc=f"relative hysteresis gain change per standard deviation of {self.channel}")]
+
+    def load_dict(self, data: dict[str, Any]) -> None:
+        super().load_dict(data)
+        if not any(p.name == "g" for p in self.params):
+            raise UserError(f"the {self.channel} channel's effect was saved in an older layout (a weighted copy of "
+                            "every hysteresis column), which one gain on the loop replaced: fit the model again",
+                            hint="hilbench fit DATA.h5 --model SPEC -o FIT.json")
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
         da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
-        names = [f"{self.channel}:offset"]
-        keeps = [(b, [k for k, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
-        # written into one array: stacking the copies afterwards doubled the memory traffic of
-        # the widest block of a refit
-        mat = np.empty((da.size, 1 + sum(len(keep) for _, keep in keeps)))
-        mat[:, 0] = da
-        c = 1
-        for block, keep in keeps:
-            np.multiply(block.matrix[:, keep], da[:, None], out=mat[:, c : c + len(keep)])
-            names += [f"{block.names[k]}*d{self.channel}" for k in keep]
-            c += len(keep)
-        return Columns.of(mat, names)
-
-    def contribution(self, s: Signals, state: dict[str, Any], previous: list[Columns],
-                     weights: np.ndarray) -> tuple[np.ndarray, int]:
-        """Simulation without materialising the modulated columns (see columns())."""
-        da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
-        total, k = _modulated_sum([b for b in previous if b.hysteresis], weights[1:], skip_offset=True)
-        return weights[0] * da + da * total, 1 + k
+        _scale_hysteresis(previous, np.maximum(1.0 + self.param("g") * da, GAIN_FLOOR))
+        return Columns.of(np.ascontiguousarray(da)[:, None], [f"{self.channel}:offset"])
 
     def to_dict(self) -> dict[str, Any]:
         return {**super().to_dict(), "name": self.channel, "channel": self.channel}

@@ -126,14 +126,22 @@ class Model:
             return x
         return MK.delay_rows(np.ascontiguousarray(x), delay.param("seconds") * fs)
 
+    def _joined_signals(self, runs: list[RunData], u: np.ndarray) -> Signals:
+        """The training runs joined, each run's first rate zero (nothing is measured across a junction)."""
+        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
+                         self.sample_rate_hz)
+        signals = self._signals(joined, u)
+        starts = np.cumsum([0] + [len(r.input) for r in runs[:-1]])
+        signals.vdot[starts] = 0.0
+        signals.starts = tuple(int(i) for i in starts)
+        return signals
+
     def prepare(self, runs: list[RunData]) -> None:
         """Set normalisation and data-dependent constants from training runs (before fitting)."""
         u = np.concatenate([r.input for r in runs])
         self.sample_rate_hz = runs[0].sample_rate_hz
         self.norm.setdefault("u_scale", float(np.max(np.abs(u))) or 1.0)
-        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
-                         self.sample_rate_hz)
-        signals = self._signals(joined, u)
+        signals = self._joined_signals(runs, u)
         for c in self.components:
             c.prepare(signals)
             c.fix_from_options()
@@ -141,9 +149,7 @@ class Model:
     def finalize(self, runs: list[RunData]) -> None:
         """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds)."""
         u = np.concatenate([r.input for r in runs])
-        joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
-                         self.sample_rate_hz)
-        signals = self._signals(joined, u)
+        signals = self._joined_signals(runs, u)
         for c in self.components:
             c.finalize(signals)
 
@@ -263,21 +269,19 @@ class Model:
                            run.sample_rate_hz)
             s = self._signals(part, self._delayed(part), u_before)
             blocks: list[Columns] = []
+            first: list[int] = []  # each block's first weight
             acc = np.zeros(stop - start)
             k = 0
             for c, state in zip(self.components, states):
-                contribution = getattr(c, "contribution", None)
-                if contribution is not None:  # modulating effects: no n x p copies
-                    vec, used = contribution(s, state, blocks, self.weights[k:])
-                    acc += vec
-                    k += used
-                    continue
                 block = c.columns(s, state, blocks)
                 if block is not None:
                     blocks.append(block)
-                    p = block.matrix.shape[1]
-                    acc += block.matrix @ self.weights[k : k + p]
-                    k += p
+                    first.append(k)
+                    k += block.matrix.shape[1]
+            # weighted once every component has had its say: rate-dependence and aux channels scale
+            # the hysteresis blocks before them in place (a gain times y_RI, 003 eq. 9)
+            for block, k0 in zip(blocks, first):
+                acc += block.matrix @ self.weights[k0 : k0 + block.matrix.shape[1]]
             h[start:stop] = acc
             u_before = float(run.input[stop - 1])
         h = self._delay_rows(h[:, None], run.sample_rate_hz)[:, 0]
@@ -325,7 +329,10 @@ class Model:
         model.sample_rate_hz = float(data.get("sample_rate_hz", 0.0))
         model.norm = dict(data.get("normalisation", {}))
         for component, saved in zip(model.components, data["components"]):
-            component.load_dict(saved)
+            try:
+                component.load_dict(saved)
+            except UserError as exc:  # name the file: the component does not know it
+                raise UserError(exc.message, where=exc.where or where, hint=exc.hint) from None
         weights = data["parameters"]["weights"]
         model.weight_names = [w["name"] for w in weights]
         model.weights = np.array([float(w["value"]) for w in weights])

@@ -84,7 +84,9 @@ I_X_DYN = 44
 I_X_BUF = 45
 I_NB = 46  # base columns
 I_NX = 47  # length of X
-N_I = 48
+I_RATE_K = 48  # P offset: rate-dependence gain coefficients (damping: g; frequency: k_1..k_order)
+I_AUX_G = 49  # P offset: aux channels' gain coefficients g
+N_I = 50
 
 # -- scalars: indices into P --------------------------------------------------------------------------
 P_FS = 0
@@ -104,7 +106,8 @@ P_F_REF = 13
 P_DELAY_FRAC = 14
 P_DYN_B0 = 15  # b[0] (the whole filter when it is a pure gain)
 P_SAT_P = 16  # sharpness of the saturation knee (form=knee)
-N_P = 17
+P_GAIN_FLOOR = 17  # floor of the loop gains (components.GAIN_FLOOR)
+N_P = 18
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
 X_STARTED = 0
@@ -248,6 +251,7 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     for i in range(H):
         h += X[row + i] * P[ow + i]
     nk = I[I_NK]
+    rgain = 1.0  # rate-dependence's gain on the hysteresis columns but the offset (003 eq. 9)
     # -- creep: drift parts lp(x) - x of first-order low-passes (searched elements or the fixed bank) --
     nc = I[I_NCREEP]
     if nc > 0:
@@ -280,12 +284,11 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
         sg = _sgn(vdot)
         m = P[P_RATE_M]
         o_wr = I[I_W_RATE]
+        o_k = I[I_RATE_K]
         if rate_form == 1:
             rate = abs(vdc) / P[P_RATE_Q]
-            total = 0.0
-            for i in range(nk):
-                total += X[xk + i] * P[o_wr + 1 + i]
-            h += P[o_wr] * sg * rate**m + rate * total
+            rgain = 1.0 + P[o_k] * rate
+            h += P[o_wr] * sg * rate**m
         else:
             o_tp = I[I_X_TP]
             tp = X[o_tp : o_tp + N_TP]
@@ -296,15 +299,15 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
             md = sg * abs(vdc / q) ** m if q > 0.0 else 0.0
             order = I[I_ORDER]
             o_mom = I[I_MOMENTS]
+            power = 1.0
             for jj in range(order):
-                h += P[o_wr + jj] * md * (fn ** float(jj) * P[o_mom + jj])
-            k = o_wr + order
+                h += P[o_wr + jj] * md * (power * P[o_mom + jj])
+                power *= fn
+            power = 1.0
             for jj in range(1, order + 1):
-                total = 0.0
-                for i in range(H):
-                    total += X[row + i] * P[k + i]
-                h += (fn ** float(jj) * P[o_mom + jj]) * total
-                k += H
+                power *= fn
+                rgain += P[o_k + jj - 1] * P[o_mom + jj] * power
+        rgain = max(rgain, P[P_GAIN_FLOOR])
     # -- auxiliary channels: offset and gain changes -------------------------------------------------
     naux = I[I_NAUX]
     if naux > 0:
@@ -312,11 +315,16 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
         k = I[I_W_AUX]
         for ch in range(naux):
             da = (aux[ch] - P[o_aux + 2 * ch]) / P[o_aux + 2 * ch + 1]
-            total = 0.0
-            for i in range(nk):
-                total += X[xk + i] * P[k + 1 + i]
-            h += P[k] * da + da * total
-            k += 1 + nk
+            h += P[k] * da
+            rgain *= max(1.0 + P[I[I_AUX_G] + ch] * da, P[P_GAIN_FLOOR])
+            k += 1
+    if rgain != 1.0:
+        # the hysteresis columns but the offset, scaled by the loop gains: (gain - 1) times their sum
+        hk = 0.0
+        for i in range(H):
+            if i != off:
+                hk += X[row + i] * P[ow + i]
+        h += (rgain - 1.0) * hk
     # -- delay: the static part's output, fractional samples, first value held before the start --------
     if I[I_DELAY] != 0:
         buf = I[I_X_BUF]
@@ -392,6 +400,7 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     I = f.I
     f.P[P_FS] = fs
     f.P[P_USCALE] = float(model.norm["u_scale"])
+    f.P[P_GAIN_FLOOR] = C.GAIN_FLOOR
     base = model.base
     # -- base ---------------------------------------------------------------------------------------
     if isinstance(base, C.Linear):
@@ -504,10 +513,11 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
         f.P[P_RATE_M] = rate.param("m")
         f.P[P_VDOT_MAX] = float(rate.constants.get("vdot_max", np.inf))
         I[I_W_RATE] = I[I_W] + k
+        I[I_RATE_K] = f.put(rate.gain_coefficients())
         if rate.constants["form"] == "damping":
             I[I_RATE] = 1
             f.P[P_RATE_Q] = float(rate.constants["rate_ref"])
-            k += 1 + nk
+            k += 1
         elif rate.constants["form"] == "frequency":
             I[I_RATE] = 2
             order = int(rate.constants["order"])
@@ -515,7 +525,7 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
             I[I_MOMENTS] = f.put(rate.harmonic_moments())
             f.P[P_F_REF] = float(rate.constants["f_ref"])
             I[I_X_TP] = f.state(N_TP)
-            k += order + order * H
+            k += order
         else:
             raise NotCompilable(f"rate-dependence form {rate.constants['form']!r}")
     # -- auxiliary channels ---------------------------------------------------------------------------------
@@ -527,8 +537,9 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
             e = model.effect(c)
             refs += [float(e.constants["reference"]), float(e.constants["scale"])]
         I[I_AUX] = f.put(refs)
+        I[I_AUX_G] = f.put([model.effect(c).param("g") for c in channels])
         I[I_W_AUX] = I[I_W] + k
-        k += len(channels) * (1 + nk)
+        k += len(channels)
     if k != w.size:
         raise NotCompilable(f"weight layout: {k} columns expected, the model has {w.size} weights")
     # -- delay and dynamics ------------------------------------------------------------------------------------

@@ -119,8 +119,10 @@ def test_general_inverse_covers_effects_creep_and_aux() -> None:
     creep, temp = model.effects
     creep.params = [ShapeParam("tau_0", 0.05, 0.01, 10.0, "s"), ShapeParam("tau_1", 0.5, 0.01, 10.0, "s")]
     temp.constants.update({"reference": 25.0, "scale": 5.0})
-    # weights: offset, 4 operators, 2 creep, temperature offset + 3 gain copies (operators, no offset)
-    model.weights = np.array([0.0, 1.0, 0.5, 0.3, 0.2, 0.15, 0.1, 0.4, 0.05, 0.02, 0.02, 0.02])
+    # the loop's gain changes by 10 % per 5 degC (decision 0019)
+    temp.params = [ShapeParam("g", 0.1, -0.5, 0.5, "per channel std")]
+    # weights: offset, 4 operators, 2 creep, temperature offset
+    model.weights = np.array([0.0, 1.0, 0.5, 0.3, 0.2, 0.15, 0.1, 0.05])
     u = _input(3, n=3000)
     temperature = np.linspace(20.0, 35.0, u.size)
     y = compile_model(model, FS).block(u, {"temperature": temperature})
