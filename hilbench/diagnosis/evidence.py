@@ -101,12 +101,24 @@ def _rate_of_change(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any
             f"as a lag of {1e3 * lag:.3g} ms): a time delay"), ev
 
 
+def parity_overlap(u: np.ndarray) -> float:
+    """How far this drive can tell an even pattern from an odd one: the fraction of the even
+    regressor's variance (the centred input squared) the odd regressors (u, u^3, about zero) explain.
+    Near 0 on a drive that swings about zero; near 1 on a one-sided drive, where a cubic in u is as
+    good a fit to a parabola as the parabola itself, so even and odd residual patterns are the same."""
+    span = max(float(np.ptp(u)), 1e-12)
+    v = (u - u.mean()) / (span / 2)
+    s = u / max(float(np.max(np.abs(u))), 1e-12)
+    return explained(v**2, [s, s**3])
+
+
 def _even_input(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
     e, u = rows.e, rows.u
     span = max(float(np.ptp(u)), 1e-12)
     v = (u - u.mean()) / (span / 2)
     even = explained(e, [v**2, v**4])
-    ev = {"explained_by_even_input": even, "corr_e_u2": correlation(e, v**2), "signature": even}
+    ev = {"explained_by_even_input": even, "corr_e_u2": correlation(e, v**2), "signature": even,
+          "parity_overlap": parity_overlap(u)}
     return (f"{100 * even:.2g} % of the error's variance is an even function of the input: the loops are "
             "not centrally symmetric (asymmetry)"), ev
 
@@ -118,7 +130,8 @@ def _odd_input(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
     outer = a >= np.percentile(a, 80)
     share = float(e2[outer].sum() / total)
     odd = explained(e, [u, u**3])
-    ev = {"outer_20pct_share": share, "explained_by_odd_input": odd, "signature": odd}
+    ev = {"outer_20pct_share": share, "explained_by_odd_input": odd, "signature": odd,
+          "parity_overlap": parity_overlap(u)}
     return (f"{100 * share:.2g} % of the squared error lies in the outer fifth of the input range: the loops "
             "flatten at large drive (saturation)"), ev
 

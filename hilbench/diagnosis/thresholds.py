@@ -58,6 +58,12 @@ RICHER_FORM_MARGIN = 0.1
 #: A tie on validation error is broken by the residual's pattern when signatures differ this much.
 SIGNATURE_MARGIN = 0.2
 
+#: A tie the patterns do not break goes to the candidate with fewer free parameters only when its
+#: validation rmse is within this fraction of the leader's: equal errors, not merely errors the
+#: block test cannot separate (a saturation explaining 39 % against an even term's 31 % is a
+#: difference the few blocks miss, not an equality).
+PARSIMONY_MARGIN = 0.05
+
 #: An auxiliary channel is tried when its smoothed range exceeds this many noise stds: pure noise
 #: gives well under 1, a 1.5 degC drift under 0.15 degC of noise gives 10.
 AUX_MIN_VARIATION = 3.0

@@ -259,24 +259,54 @@ def _signature_name(effect: str) -> str | None:
     return E.EFFECTS[effect].signature if effect in E.EFFECTS else None
 
 
+def free_parameters(c: Candidate) -> int:
+    """What a candidate's refit adjusts to the data: its weights and searched shape parameters."""
+    model = c.fitted.model if c.fitted is not None else None
+    if model is None or model.weights is None:
+        return 0
+    return int(model.weights.size) + sum(1 for p in model.shape_params() if p.upper > p.lower)
+
+
+def _pattern_decides_for(a: Candidate, b: Candidate) -> bool:
+    """Whether the residual's pattern prefers ``a`` over ``b`` by SIGNATURE_MARGIN. Patterns do not
+    decide when nested (the richer one explains more of any residual) nor when the drive cannot
+    tell them apart: a purely even residual shows an odd signature of about the drive's
+    ``parity_overlap``, so the two can differ by at most 1 - overlap, and below SIGNATURE_MARGIN a
+    "difference" is the noise of the fits (a one-sided drive, overlap ~0.97)."""
+    if "signature" not in a.evidence or "signature" not in b.evidence:
+        return False
+    if nested(_signature_name(a.effect), _signature_name(b.effect)):
+        return False
+    overlap = max(a.evidence.get("parity_overlap", 0.0), b.evidence.get("parity_overlap", 0.0))
+    if "parity_overlap" in a.evidence and "parity_overlap" in b.evidence and 1.0 - overlap < T.SIGNATURE_MARGIN:
+        return False
+    return a.evidence["signature"] >= b.evidence["signature"] + T.SIGNATURE_MARGIN
+
+
 def rank(cands: list[Candidate]) -> None:
     """Order candidates in place: significant first, then by expected gain. When the best one's
     validation error cannot be told from another significant candidate's (block test both ways,
-    p >= P_MAX) the two refits explain the data equally well, and the residual's own pattern
-    decides: the candidate whose ``signature`` (fraction of the error's variance its physical
-    pattern explains, e.g. even in the input for asymmetry, odd for saturation) is higher by at
-    least SIGNATURE_MARGIN goes first. A cubic term mimics saturation on a bipolar drive, so
-    without this asymmetry and saturation are a coin toss on saturating data. Nested patterns
-    (:data:`hilbench.diagnosis.evidence.NESTED_SIGNATURES`: dynamics' derivatives contain a delay's
-    rate of change) do not decide: the richer one explains more of any residual."""
+    p >= P_MAX) the two refits explain the data equally well, and the tie is broken:
+
+    1. by the residual's own pattern: the candidate whose ``signature`` (fraction of the error's
+       variance its physical pattern explains, e.g. even in the input for asymmetry, odd for
+       saturation) is higher by at least SIGNATURE_MARGIN goes first. A cubic term mimics
+       saturation on a bipolar drive, so without this asymmetry and saturation are a coin toss on
+       saturating data. Nested patterns (:data:`hilbench.diagnosis.evidence.NESTED_SIGNATURES`:
+       dynamics' derivatives contain a delay's rate of change) do not decide: the richer one
+       explains more of any residual; nor do even and odd patterns on a drive that cannot tell
+       them apart (:func:`hilbench.diagnosis.evidence.parity_overlap`, a one-sided drive).
+    2. when the patterns do not decide, by parsimony: the tied candidate with the fewest free
+       parameters (weights and searched shape) whose validation rmse is within PARSIMONY_MARGIN of
+       the leader's goes first. Equal errors from fewer parameters are
+       the better explanation; the richer refit matched them by flexibility (on a one-sided drive a
+       flattening of every hysteresis column mimics an even term in the input)."""
     cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
     if not cands or not cands[0].significant or cands[0].fitted is None:
         return
     top = cands[0]
-    if "signature" not in top.evidence:
-        return  # no pattern to weigh against (rate-dependence, creep): gain order stands
     e_top = validation_errors(top.fitted)
-    best, best_p = top, 1.0
+    tied: list[tuple[Candidate, float]] = []
     for c in cands[1:]:
         if not c.significant or c.fitted is None or "rate_calibration" in c.evidence or "rate_calibration" in top.evidence:
             continue
@@ -284,17 +314,31 @@ def rank(cands: list[Candidate]) -> None:
         if e_c.size != e_top.size:
             continue
         p_top_better, _, _ = block_test(e_c, e_top)
-        if p_top_better < T.P_MAX:
-            continue  # the data tell them apart: gain order stands
-        if nested(_signature_name(top.effect), _signature_name(c.effect)):
-            continue  # the richer pattern always explains more (a delay's residual has derivatives too)
-        if "signature" in c.evidence and c.evidence["signature"] >= best.evidence["signature"] + T.SIGNATURE_MARGIN:
-            best, best_p = c, p_top_better
+        if p_top_better >= T.P_MAX:  # the data cannot tell them apart
+            tied.append((c, p_top_better))
+    best, best_p, reason = top, 1.0, ""
+    for c, p in tied:  # (rate-dependence, creep: no pattern to weigh, the gain order stands)
+        if _pattern_decides_for(c, best) and not nested(_signature_name(top.effect), _signature_name(c.effect)):
+            best, best_p, reason = c, p, "signature"
+    if best is top:
+        fewest, rms_top = free_parameters(top), rms(e_top)
+        for c, p in tied:
+            if _pattern_decides_for(top, c):
+                continue  # the residual's pattern already chose the leader
+            if free_parameters(c) < fewest and rms(validation_errors(c.fitted)) <= rms_top * (1.0 + T.PARSIMONY_MARGIN):
+                best, best_p, reason, fewest = c, p, "parsimony", free_parameters(c)
     if best is not top:
         cands.remove(best)
         cands.insert(0, best)
-        best.evidence["ranked_by_signature"] = {
-            "over": top.effect, "p_value_of_difference": best_p,
-            "signatures": {top.effect: top.evidence.get("signature"), best.effect: best.evidence.get("signature")}}
-        best.explanation += (f"; its validation error cannot be told from {top.effect}'s (p {best_p:.2g}) and the "
-                             f"error's pattern fits {best.effect} better")
+        if reason == "signature":
+            best.evidence["ranked_by_signature"] = {
+                "over": top.effect, "p_value_of_difference": best_p,
+                "signatures": {top.effect: top.evidence.get("signature"), best.effect: best.evidence.get("signature")}}
+            best.explanation += (f"; its validation error cannot be told from {top.effect}'s (p {best_p:.2g}) and the "
+                                 f"error's pattern fits {best.effect} better")
+        else:
+            best.evidence["ranked_by_parsimony"] = {
+                "over": top.effect, "p_value_of_difference": best_p,
+                "free_parameters": {top.effect: free_parameters(top), best.effect: free_parameters(best)}}
+            best.explanation += (f"; its validation error cannot be told from {top.effect}'s (p {best_p:.2g}) and it "
+                                 f"needs fewer parameters ({free_parameters(best)} against {free_parameters(top)})")

@@ -1,0 +1,86 @@
+"""How :func:`hilbench.diagnosis.verdict.rank` breaks ties between candidates whose validation errors
+the block test cannot separate: by the residual's pattern first, then by parsimony, and only when
+the errors are really equal."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.evidence import parity_overlap
+from hilbench.diagnosis.verdict import Candidate, rank
+
+N = 4000
+
+
+def _candidate(effect: str, gain: float, n_weights: int, errors: np.ndarray) -> Candidate:
+    """A significant candidate whose refit has ``n_weights`` weights and these validation errors."""
+    model = SimpleNamespace(weights=np.zeros(n_weights), shape_params=lambda: [])
+    run = SimpleNamespace(key="test", simulated=errors.copy(), data=SimpleNamespace(output=np.zeros(N)),
+                          validation=np.ones(N, dtype=bool))
+    fitted = SimpleNamespace(model=model, runs=[run])
+    return Candidate(effect=effect, spec=f"pi + {effect}", significant=True, expected_gain=gain,
+                     explanation=f"{effect} helps", evidence={}, fitted=fitted)  # type: ignore[arg-type]
+
+
+def test_equal_errors_go_to_the_candidate_with_fewer_parameters():
+    rng = np.random.default_rng(1)
+    e, e_lean = rng.normal(0.0, 1.0, N), rng.normal(0.0, 1.0, N)  # equal in law: neither is better
+    rich = _candidate("saturation", 0.80, 12, e)
+    lean = _candidate("asymmetry", 0.79, 9, e_lean)
+    cands = [lean, rich]
+    rank(cands)
+    assert cands[0] is lean
+    ev = lean.evidence["ranked_by_parsimony"]
+    assert ev["over"] == "saturation" and ev["free_parameters"] == {"saturation": 12, "asymmetry": 9}
+    assert "fewer parameters (9 against 12)" in lean.explanation
+
+
+def test_a_difference_the_blocks_miss_is_not_a_tie_for_parsimony():
+    """The leaner candidate is 2x worse in two of the twenty blocks: the signed-rank test over blocks
+    cannot call the leader better, but its rmse is ~14 % higher, beyond the margin: gain order stands."""
+    e = np.random.default_rng(2).normal(0.0, 1.0, N)
+    worse = e.copy()
+    worse[: 2 * N // T.N_BLOCKS] *= 2.0
+    rich = _candidate("saturation", 0.40, 12, e)
+    lean = _candidate("asymmetry", 0.31, 9, worse)
+    cands = [lean, rich]
+    rank(cands)
+    assert cands[0] is rich
+    assert "ranked_by_parsimony" not in lean.evidence
+
+
+def test_a_pattern_that_decides_comes_before_parsimony():
+    rng = np.random.default_rng(3)
+    rich = _candidate("saturation", 0.80, 12, rng.normal(0.0, 1.0, N))
+    lean = _candidate("asymmetry", 0.79, 9, rng.normal(0.0, 1.0, N))
+    rich.evidence["signature"] = 0.9
+    lean.evidence["signature"] = 0.1
+    cands = [lean, rich]
+    rank(cands)
+    assert cands[0] is rich  # saturation's odd pattern explains the residual: it stays first
+
+
+def test_parity_overlap_tells_a_one_sided_drive_from_a_bipolar_one():
+    t = np.linspace(0.0, 4.0, 8000)
+    bipolar = 100.0 * np.sin(2 * np.pi * t)
+    one_sided = 50.0 + 50.0 * np.sin(2 * np.pi * t)
+    assert parity_overlap(bipolar) < 0.05  # v^2 is orthogonal to u, u^3 about zero
+    assert parity_overlap(one_sided) > 0.9  # a cubic in u fits the parabola about the centre
+
+
+def test_on_a_one_sided_drive_the_patterns_do_not_decide_and_parsimony_does():
+    """The odd pattern 'wins' by 0.3, but on a drive 0..100 V an even residual shows as odd too:
+    the tie goes to the candidate with fewer parameters (a one-sided asymmetry case of the
+    randomized benchmark, seed 83, had saturation ranked first this way)."""
+    rng = np.random.default_rng(4)
+    rich = _candidate("saturation", 0.86, 12, rng.normal(0.0, 1.0, N))
+    lean = _candidate("asymmetry", 0.85, 9, rng.normal(0.0, 1.0, N))
+    overlap = parity_overlap(50.0 + 50.0 * np.sin(np.linspace(0.0, 20.0, N)))
+    rich.evidence.update(signature=0.93, parity_overlap=overlap)
+    lean.evidence.update(signature=0.63, parity_overlap=overlap)
+    cands = [rich, lean]
+    rank(cands)
+    assert cands[0] is lean and "ranked_by_parsimony" in lean.evidence
