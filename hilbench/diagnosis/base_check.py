@@ -15,7 +15,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.verdict import Candidate, block_test, relative_gain, validation_errors
+from hilbench.diagnosis.significance import improvement_test
+from hilbench.diagnosis.verdict import Candidate, relative_gain, validation_errors
 from hilbench.errors import UserError
 from hilbench.identify.fitting import FitResult, fit
 from hilbench.models.model import split_spec
@@ -60,7 +61,7 @@ def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float,
         return None
     new_v, new_t = best.metrics["validation"]["rmse"], best.metrics["train"]["rmse"]
     e_old, e_new = validation_errors(base), validation_errors(best)
-    p, better, blocks = block_test(e_old, e_new)
+    p, better, blocks = improvement_test(e_old, e_new)
     gain = relative_gain(old_v, new_v)
     best_effect = min([old_v, *[v for v in effect_rmse if v == v]])
     checks = {

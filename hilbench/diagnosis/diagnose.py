@@ -8,9 +8,10 @@
 * refits the spec with every effect it lacks and the data can test, on the same split, and calls an
   effect significant when (a) validation rmse drops by more than 10 %, (b) training improves too and
   the two relative gains agree (validation at least half of training's, training at least a quarter
-  of validation's: neither an artefact of more parameters nor chance extrapolation), (c) a
-  one-sided Wilcoxon signed-rank test on the per-block squared-error differences of ~20 contiguous
-  validation blocks gives p < 0.01, and (d) the current validation error is above the noise floor
+  of validation's: neither an artefact of more parameters nor chance extrapolation), (c) block tests
+  on the squared-error differences of contiguous validation blocks (signed ranks over ~20 blocks
+  for a gain spread over the record, sign flips of the sum for one concentrated in a few
+  stretches, :mod:`hilbench.diagnosis.significance`) give p < 0.01, and (d) the current validation error is above the noise floor
   (noise estimated from sample-to-sample residual differences);
 * tries every effect of the registry (:mod:`hilbench.effects`) that the data can test
   (:mod:`hilbench.diagnosis.testability`) in the forms its entry lists (:mod:`hilbench.diagnosis.refit`);

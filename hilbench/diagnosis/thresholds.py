@@ -9,7 +9,7 @@ from __future__ import annotations
 #: few more parameters buys as much on held-out rows by chance on the suites' noise levels.
 MIN_GAIN = 0.10
 
-#: One-sided Wilcoxon signed-rank test on contiguous validation blocks: p below this. Blocks (not
+#: Block tests of the validation error (hilbench/diagnosis/significance.py): p below this. Blocks (not
 #: samples) because residuals are strongly autocorrelated; 1 % because every diagnosis tests up to
 #: ten candidates and a false effect costs the user a wrong model.
 P_MAX = 0.01
@@ -17,6 +17,15 @@ P_MAX = 0.01
 #: Contiguous validation blocks of the signed-rank test: enough for p < 0.01 to be reachable
 #: (needs at least 7 of 7), few enough that blocks are longer than the residual's correlation.
 N_BLOCKS = 20
+
+#: The sign-flip test of the summed difference (a gain concentrated in a few stretches, decision
+#: 0022) uses blocks this many correlation lengths of the squared-error difference long: at 1/e per
+#: length neighbours share under 5 % of their variance, so the block differences are nearly independent ...
+SUM_TEST_BLOCK_CORRELATIONS = 10
+#: ... at least N_BLOCKS and at most this many (more blocks add resolution the flips cannot use) ...
+SUM_TEST_MAX_BLOCKS = 200
+#: ... and this many random sign flips: p resolves to 1e-4, far below P_MAX / 2.
+SUM_TEST_FLIPS = 10000
 
 #: The current validation rmse must exceed this multiple of the noise floor: an error at the
 #: sensor's noise has nothing left to explain. The floor is the sensor's, estimated from the measured

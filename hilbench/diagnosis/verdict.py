@@ -2,8 +2,9 @@
 
 An effect is significant when (a) the validation rmse drops by more than MIN_GAIN, (b) training
 improves too and the two relative gains agree (neither an artefact of more parameters nor chance
-extrapolation), (c) a one-sided Wilcoxon signed-rank test on the per-block squared-error
-differences of N_BLOCKS contiguous validation blocks gives p < P_MAX, (d) the current validation
+extrapolation), (c) the block tests of :func:`hilbench.diagnosis.significance.improvement_test` on
+the squared-error differences of contiguous validation blocks (a gain spread over the record or
+concentrated in a few stretches) give p < P_MAX, (d) the current validation
 error is above NOISE_FACTOR times the noise floor, and (e) the effect's evidence check, if its
 registry entry names one, holds. Thresholds: :mod:`hilbench.diagnosis.thresholds`.
 
@@ -20,7 +21,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
@@ -28,6 +28,7 @@ from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain, nested
 from hilbench.diagnosis.rate_calibration import RatePlan
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import ResidualRows
+from hilbench.diagnosis.significance import improvement_test
 from hilbench.identify.fitting import FitResult
 
 
@@ -73,17 +74,6 @@ def rms(e: np.ndarray) -> float:
 
 def relative_gain(old: float, new: float) -> float:
     return 1.0 - new / old if old > 0 else 0.0
-
-
-def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = T.N_BLOCKS) -> tuple[float, int, int]:
-    """One-sided Wilcoxon signed-rank p-value that the new squared error is lower, over contiguous
-    blocks; and how many blocks improved, of how many."""
-    blocks = [b for b in np.array_split(np.arange(e_old.size), min(n_blocks, e_old.size)) if b.size]
-    d = np.array([np.mean(e_old[b] ** 2) - np.mean(e_new[b] ** 2) for b in blocks])
-    if d.size < 5 or not np.any(d != 0):
-        return 1.0, int(np.sum(d > 0)), int(d.size)
-    p = float(stats.wilcoxon(d, alternative="greater", zero_method="zsplit").pvalue)
-    return p, int(np.sum(d > 0)), int(d.size)
 
 
 def _pct(x: float) -> str:
@@ -215,7 +205,7 @@ def judge(paths: Any, base: FitResult, effect: str, rows: ResidualRows, noise: f
         agree = "calibration_and_confirmation_agree"
         extra = {"rate_calibration": plan.to_json(), "confirmation_rmse": [rms(e_old), rms(e_new)],
                  "calibration_rmse": [c_old, c_new], "calibration_gain": learned}
-    p, better, blocks = block_test(e_old, e_new)
+    p, better, blocks = improvement_test(e_old, e_new)
     checks = {"gain_over_10pct": gain > T.MIN_GAIN}
     if agree:
         # a real effect is learned from one set of rows and holds on unseen rows: neither gain may
@@ -285,8 +275,10 @@ def _pattern_decides_for(a: Candidate, b: Candidate) -> bool:
 
 def rank(cands: list[Candidate]) -> None:
     """Order candidates in place: significant first, then by expected gain. When the best one's
-    validation error cannot be told from another significant candidate's (block test both ways,
-    p >= P_MAX) the two refits explain the data equally well, and the tie is broken:
+    validation error cannot be told from another significant candidate's (the other's rmse within
+    PARSIMONY_MARGIN of the best's, or the block tests of
+    :func:`hilbench.diagnosis.significance.improvement_test` give p >= P_MAX) the two refits explain
+    the data equally well, and the tie is broken:
 
     1. by the residual's own pattern: the candidate whose ``signature`` (fraction of the error's
        variance its physical pattern explains, e.g. even in the input for asymmetry, odd for
@@ -298,7 +290,8 @@ def rank(cands: list[Candidate]) -> None:
        them apart (:func:`hilbench.diagnosis.evidence.parity_overlap`, a one-sided drive).
     2. when the patterns do not decide, by parsimony: the tied candidate with the fewest free
        parameters (weights and searched shape) whose validation rmse is within PARSIMONY_MARGIN of
-       the leader's goes first. Equal errors from fewer parameters are
+       the leader's goes first (a tie by the tests alone is not enough: with few blocks they miss
+       differences of tens of percent). Equal errors from fewer parameters are
        the better explanation; the richer refit matched them by flexibility (on a one-sided drive a
        flattening of every hysteresis column mimics an even term in the input)."""
     cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
@@ -313,8 +306,9 @@ def rank(cands: list[Candidate]) -> None:
         e_c = validation_errors(c.fitted)
         if e_c.size != e_top.size:
             continue
-        p_top_better, _, _ = block_test(e_c, e_top)
-        if p_top_better >= T.P_MAX:  # the data cannot tell them apart
+        p_top_better, _, _ = improvement_test(e_c, e_top)
+        equal = rms(e_c) <= rms(e_top) * (1.0 + T.PARSIMONY_MARGIN)
+        if equal or p_top_better >= T.P_MAX:  # the data cannot tell them apart
             tied.append((c, p_top_better))
     best, best_p, reason = top, 1.0, ""
     for c, p in tied:  # (rate-dependence, creep: no pattern to weigh, the gain order stands)

@@ -15,7 +15,7 @@ from hilbench.rig.config import load_rig
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.refit import spec_with
 from hilbench.diagnosis.rows import noise_floor
-from hilbench.diagnosis.verdict import block_test
+from hilbench.diagnosis.significance import block_test
 from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.sim.plant import Plant
 from tests.conftest import MINIMAL_RIG
