@@ -25,6 +25,7 @@ from threadpoolctl import threadpool_limits
 
 from hilbench.errors import UserError
 from hilbench import progress as _progress
+from hilbench.identify.resonance import contiguous_stretches
 from hilbench.models.model import Model, RunData
 from hilbench.models.spec import check_fit_memory
 
@@ -270,6 +271,40 @@ def _sobol_points(lo: np.ndarray, hi: np.ndarray, n: int, seed: int) -> np.ndarr
     return qmc.scale(sampler.random(n), lo, hi)
 
 
+def _starts_from_residual(model: Model, runs: list[RunData], train_masks: list[np.ndarray], problem: _Problem,
+                          x0: np.ndarray, fresh: np.ndarray) -> list[np.ndarray]:
+    """Starts of the global scan that components read off the data (a resonance's ringing in the
+    residual's spectrum, :meth:`Component.starts_from_residual`): for each searched component
+    with a neutral shape, the training residual with it neutral, on every training row (the
+    search's thinned rows would alias the spectrum), cut into contiguous stretches."""
+    position = {id(p): k for k, p in enumerate(problem.params)}
+    out: list[np.ndarray] = []
+    for component in model.components:
+        neutral = component.neutral_shape()
+        if neutral is None or not any(id(p) in position and fresh[position[id(p)]] for p in component.shape()):
+            continue
+        theta = problem.to_theta(x0)
+        for p in component.shape():
+            if p.name in neutral and id(p) in position:
+                theta[position[id(p)]] = neutral[p.name]
+        full = _Problem(model, runs, train_masks)
+        residual = full.residual(full.to_x(theta))
+        fs = next((r.sample_rate_hz for r, m in zip(full.runs, full.masks) if m.any()), 0.0)
+        stretches, at = [], 0
+        for r, m in zip(full.runs, full.masks):
+            rows = np.flatnonzero(m)
+            part, at = residual[at: at + rows.size], at + rows.size
+            if r.sample_rate_hz == fs:  # one spectrum: runs at another rate are left out
+                stretches += contiguous_stretches(part, rows)
+        for start in component.starts_from_residual(stretches, fs):
+            x = problem.to_theta(x0)
+            for p in component.shape():
+                if p.name in start and id(p) in position:
+                    x[position[id(p)]] = start[p.name]
+            out.append(problem.to_x(x))
+    return out
+
+
 def fit_model(*args: Any, **kwargs: Any) -> FitReport:
     """Identify ``model`` on the training rows of ``runs``; sets its shape parameters and weights.
 
@@ -331,6 +366,7 @@ def _fit_model(
                 x = x0.copy()
                 x[fresh] = point
                 candidates.append(x)
+        candidates += _starts_from_residual(model, runs, train_masks, problem, x0, fresh)
         scored = []
         for x in candidates:
             r = problem.residual(x)

@@ -137,6 +137,18 @@ class Component:
     def finalize(self, s: Signals) -> None:
         """Freeze data-dependent constants once the shape parameters are found."""
 
+    # -- starts read off the data --------------------------------------------------------------
+    def neutral_shape(self) -> dict[str, float] | None:
+        """Shape values at which the component leaves the signal as it is (None: it has none)."""
+        return None
+
+    def starts_from_residual(self, stretches: list[np.ndarray], fs: float) -> list[dict[str, float]]:
+        """Starting points of the shape search (values by parameter name) read off the training
+        residual of the model with this component at :meth:`neutral_shape`, in contiguous
+        ``stretches`` sampled at ``fs`` Hz. Components whose error surface a coarse scan covers
+        return none."""
+        return []
+
     # -- columns -------------------------------------------------------------------------------
     def new_state(self) -> dict[str, Any]:
         return {}
@@ -949,6 +961,35 @@ class Dynamics(Component):
         else:
             self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True),
                            ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
+
+    def _searched(self, name: str) -> bool:
+        return any(p.name == name and p.upper > p.lower for p in self.params)
+
+    def neutral_shape(self) -> dict[str, float] | None:
+        """second-order: the natural frequency at its upper bound, ten times Nyquist, where the
+        filter passes the signal within a few per cent."""
+        if self.constants.get("kind") != "second-order" or not self._searched("natural_frequency_hz"):
+            return None
+        return {"natural_frequency_hz": next(p.upper for p in self.params if p.name == "natural_frequency_hz")}
+
+    def starts_from_residual(self, stretches: list[np.ndarray], fs: float) -> list[dict[str, float]]:
+        """second-order: a start at each of the residual spectrum's most prominent peaks (a
+        resonance's ringing, :mod:`hilbench.identify.resonance`), light to moderate damping."""
+        from hilbench.identify.resonance import RESONANCE_PEAKS, START_DAMPING, ringing_frequencies
+
+        if self.neutral_shape() is None:
+            return []
+        fn = next(p for p in self.params if p.name == "natural_frequency_hz")
+        zeta = next(p for p in self.params if p.name == "zeta")
+        damping = sorted({min(max(z, zeta.lower), zeta.upper) for z in START_DAMPING}) if self._searched("zeta") \
+            else [zeta.value]
+        starts = []
+        for f_peak in ringing_frequencies(stretches, fs, RESONANCE_PEAKS):
+            for z in damping:
+                f_n = f_peak / math.sqrt(1.0 - z * z) if z < 1.0 else f_peak  # the peak is the damped frequency
+                if fn.lower < f_n < fn.upper:
+                    starts.append({"natural_frequency_hz": f_n, "zeta": z})
+        return starts
 
     def coefficients(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
         from hilbench.sim.dynamics import discretize_dynamics
