@@ -17,6 +17,9 @@
   (:mod:`hilbench.diagnosis.testability`) in the forms its entry lists (:mod:`hilbench.diagnosis.refit`);
   with one training drive rate, calibrates delay and dynamics across the validation rates
   (:mod:`hilbench.diagnosis.rate_calibration`);
+* when the base refitted from a significant candidate's shape fits training better, judges every
+  refit against that base instead: the gain of a base that had stopped at a poor optimum is not an
+  effect's (:mod:`hilbench.diagnosis.base_polish`);
 * explains each effect in one sentence from its residual signature (:mod:`hilbench.diagnosis.evidence`),
   judges and ranks them by the measured fractional drop of validation rmse (``expected_gain``; a tie
   is decided by the residual's pattern, :mod:`hilbench.diagnosis.verdict`), and lists the effects the
@@ -38,11 +41,12 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis.base_check import wrong_base
+from hilbench.diagnosis.base_polish import polished_base
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
-from hilbench.diagnosis.verdict import Candidate, judge, rank
+from hilbench.diagnosis.verdict import Candidate, judge, rank, verdict
 from hilbench.diagnosis.where import where
 from hilbench.identify.dataset import Dataset, as_dataset
 from hilbench.identify.trimming import Trim
@@ -89,11 +93,23 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
     plan = testable(base.spec, base)
     every = residual_rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
     cands = []
+    plans = {eff: plan.plan if eff in plan.calibrated else None for eff in plan.tries}
     with progress.task(f"diagnose {base.spec}: effects", total=len(plan.tries)) as advance:
         for eff in plan.tries:
             advance(0, f"diagnose {base.spec}: trying {eff}")
-            cands.append(judge(paths, base, eff, every, noise, kw, plan.plan if eff in plan.calibrated else None))
+            cands.append(judge(paths, base, eff, every, noise, kw, plans[eff]))
             advance(1)
+    polished = polished_base(paths, base, cands, kw)
+    if polished is not None:
+        # the base had stopped at a poor optimum that the refits' searches left: judge every
+        # refit against the base at its better optimum (diagnosis/base_polish.py)
+        polished.notes.append(
+            f"the base {base.spec} was refitted from a candidate's shape to a better optimum (training rmse "
+            f"{base.metrics['train']['rmse']:.4g} -> {polished.metrics['train']['rmse']:.4g}); effects are "
+            f"judged against it")
+        base, rows, every = polished, residual_rows(polished), residual_rows(polished, "all")
+        cands = [verdict(base, c.effect, c.fitted, every, noise, plans[c.effect]) if c.fitted is not None else c
+                 for c in cands]
     cands += pair_candidates(paths, base, cands, every, noise, kw)  # overlapping effects, judged together
     other_base = wrong_base(paths, base, kw, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:

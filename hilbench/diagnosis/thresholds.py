@@ -64,6 +64,11 @@ CREEP_MIN_HOLD_S = 0.2
 INNER_SPLIT = 0.8
 RICHER_FORM_MARGIN = 0.1
 
+#: The base refitted from a significant candidate's shape replaces the base when it fits the
+#: training rows better by more than this fraction (hilbench/diagnosis/base_polish.py): below it
+#: the two are the same optimum reached again, up to the search's tolerance.
+POLISH_MIN_TRAIN_GAIN = 0.01
+
 #: A tie on validation error is broken by the residual's pattern when signatures differ this much.
 SIGNATURE_MARGIN = 0.2
 

@@ -183,7 +183,12 @@ def judge(paths: Any, base: FitResult, effect: str, rows: ResidualRows, noise: f
          plan: RatePlan | None = None) -> Candidate:
     """Refit with ``effect`` and judge it (module docstring). With a rate ``plan`` the gain is
     measured on the confirming runs and must agree with the calibrating runs' instead of training's."""
-    new = fit_effect(paths, base, effect, kw, plan)
+    return verdict(base, effect, fit_effect(paths, base, effect, kw, plan), rows, noise, plan)
+
+
+def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, noise: float,
+            plan: RatePlan | None = None) -> Candidate:
+    """Judge ``new``, a refit with ``effect``, against ``base`` (module docstring; :func:`judge`)."""
     old_v, new_v = base.metrics["validation"]["rmse"], new.metrics["validation"]["rmse"]
     old_t, new_t = base.metrics["train"]["rmse"], new.metrics["train"]["rmse"]
     gain_t = relative_gain(old_t, new_t)

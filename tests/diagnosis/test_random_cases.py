@@ -103,7 +103,12 @@ def test_hidden_effect_ranked_first_and_significant(seed, hidden, form, folder):
 # a clean PI actuator with a drifting lab temperature recorded (23.4 -> 24.3 degC) that it does not
 # depend on: the channel was flagged (validation gain 18 %) while validation held only the run's end;
 # with sweeping runs split in interleaved blocks, nothing is flagged
-@pytest.mark.parametrize("seed", [pytest.param(17, id="17-clean-play-pi-irrelevant-temperature")])
+# a clean m-play rig under a PMPI base whose fit stops at a poor optimum: every refit's local search
+# moved the base's shape to a better one (training 0.995 -> 0.860) and saturation, then dynamics,
+# got the credit (51 %); judged against the base refitted from their shape, nothing is left
+# (diagnosis/base_polish.py, decision 0024)
+@pytest.mark.parametrize("seed", [pytest.param(17, id="17-clean-play-pi-irrelevant-temperature"),
+                                  pytest.param(115, id="115-clean-m-play-pmpi-base-at-a-poor-optimum")])
 def test_clean_case_flags_nothing(seed, folder):
     case = DC.draw_case(seed)
     assert case.hidden == ["none"]
