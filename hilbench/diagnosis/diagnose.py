@@ -130,6 +130,14 @@ def _step(result: FitResult, added: str | None) -> dict[str, Any]:
             "train": dict(result.metrics["train"])}
 
 
+def _keep_polished(steps: list[dict[str, Any]], base: FitResult, result: Diagnosis) -> None:
+    """When the diagnosis judged against the base refitted to a better optimum (base_polish), that
+    refit is the step's model: an added effect's step records it (the starting step stays what the
+    user brought)."""
+    if result.result is not base and len(steps) > 1:
+        steps[-1] = _step(result.result, steps[-1]["added"])
+
+
 def diagnose(
     paths: Dataset | PathLike | Sequence[PathLike],
     spec_or_model_file: str,
@@ -162,6 +170,7 @@ def diagnose(
         base = _add(paths, base, add, kw)
         steps.append(_step(base, add))
     result = _diagnose_once(paths, base, kw)
+    _keep_polished(steps, base, result)
     rounds = [result]
     if auto:
         with progress.task(f"diagnose --auto: up to {max_steps} steps", total=max_steps) as advance:
@@ -171,6 +180,7 @@ def diagnose(
                 base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
                 steps.append(_step(base, best.effect))
                 result = _diagnose_once(paths, base, kw)
+                _keep_polished(steps, base, result)
                 rounds.append(result)
     result.rounds = rounds
     if add is None and not auto and not start.refitted:

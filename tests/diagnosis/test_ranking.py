@@ -102,3 +102,23 @@ def test_a_pattern_does_not_promote_a_candidate_with_more_error_in_a_few_stretch
     rank(cands)
     assert cands[0] is best
     assert "ranked_by_signature" not in other.evidence
+
+
+def test_an_added_effects_step_records_the_base_refitted_to_a_better_optimum():
+    """diagnose --add/--auto: when the round judged against the base refitted from a candidate's
+    shape (base_polish), the step's model is that refit; the starting step stays the user's."""
+    from types import SimpleNamespace
+
+    from hilbench.diagnosis.diagnose import _keep_polished
+
+    def result(spec: str, rmse: float) -> SimpleNamespace:
+        return SimpleNamespace(spec=spec, metrics={"train": {"rmse": rmse}, "validation": {"rmse": rmse}})
+
+    start, added, polished = result("pi", 3.0), result("pi+delay", 2.0), result("pi+delay", 1.0)
+    steps = [{"spec": "pi", "added": None, "validation": {"rmse": 3.0}},
+             {"spec": "pi+delay", "added": "delay", "validation": {"rmse": 2.0}}]
+    _keep_polished(steps, added, SimpleNamespace(result=polished))
+    assert steps[1]["validation"]["rmse"] == 1.0 and steps[1]["added"] == "delay"
+    only_start = [dict(steps[0])]
+    _keep_polished(only_start, start, SimpleNamespace(result=polished))
+    assert only_start[0]["validation"]["rmse"] == 3.0
