@@ -36,8 +36,10 @@ class WeightSolution:
     sse: float
 
 
-def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> WeightSolution:
-    """min ||A w - y||^2 subject to lower <= w <= upper, exactly, through the p x p normal equations.
+def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                  constraints: np.ndarray | None = None) -> WeightSolution:
+    """min ||A w - y||^2 subject to lower <= w <= upper (and ``constraints @ w >= 0`` when given),
+    exactly, through the p x p normal equations.
 
     Columns are scaled to unit norm; a tiny ridge keeps rank-deficient designs (over-parameterised
     modulated columns) solvable. Returns the weights in the original scaling.
@@ -57,7 +59,12 @@ def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.nda
         R = np.linalg.cholesky(G).T
     c = np.linalg.solve(R.T, b)
     lo, hi = lower * scale, upper * scale
-    if np.all(np.isinf(lo)) and np.all(np.isinf(hi)):
+    if constraints is not None and constraints.size:
+        ws = _bounded(R, c, lo, hi)
+        G = constraints / scale  # rows on the scaled weights
+        if np.min(G @ ws) < -1e-12 * max(float(np.max(np.abs(G @ ws))), 1e-300):
+            ws = _least_squares_with_inequalities(R, c, lo, hi, G)
+    elif np.all(np.isinf(lo)) and np.all(np.isinf(hi)):
         ws = np.linalg.solve(R, c)
     else:
         unconstrained = np.linalg.solve(R, c)
@@ -68,6 +75,47 @@ def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.nda
     w = ws / scale
     r = A @ w - y
     return WeightSolution(w, float(r @ r))
+
+
+def _bounded(R: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """min ||R w - c|| subject to lo <= w <= hi (R square, upper triangular)."""
+    unconstrained = np.linalg.solve(R, c)
+    if np.all(unconstrained >= lo) and np.all(unconstrained <= hi):
+        return unconstrained
+    return optimize.lsq_linear(R, c, bounds=(lo, hi), method="bvls", tol=1e-12).x
+
+
+def _least_squares_with_inequalities(R: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                                     G: np.ndarray) -> np.ndarray:
+    """min ||R w - c|| subject to G w >= 0 and lo <= w <= hi, exactly (R square, invertible).
+
+    Lawson & Hanson's reduction (Solving Least Squares Problems, ch. 23): with z = R w - c the
+    problem is the least-distance program min ||z|| subject to E z >= f, E = G' R^-1 and
+    f = h' - E c (the bounds as rows of G'), whose solution is read off one non-negative least
+    squares problem of size (p + 1) x rows. Raises UserError when the constraints admit no weights.
+    """
+    p = R.shape[0]
+    eye = np.eye(p)
+    rows, rhs = [G], [np.zeros(G.shape[0])]
+    finite_lo, finite_hi = np.isfinite(lo), np.isfinite(hi)
+    if finite_lo.any():
+        rows.append(eye[finite_lo])
+        rhs.append(lo[finite_lo])
+    if finite_hi.any():
+        rows.append(-eye[finite_hi])
+        rhs.append(-hi[finite_hi])
+    Gall, h = np.vstack(rows), np.concatenate(rhs)
+    E = np.linalg.solve(R.T, Gall.T).T  # G R^-1
+    f = h - E @ c
+    M = np.vstack([E.T, f[None, :]])
+    target = np.zeros(p + 1)
+    target[-1] = 1.0
+    u, _ = optimize.nnls(M, target, maxiter=50 * M.shape[1])
+    r = M @ u - target
+    if abs(r[-1]) < 1e-12:
+        raise UserError("the weight constraints admit no solution (the spec's bounds and inequalities contradict)")
+    z = -r[:p] / r[-1]
+    return np.linalg.solve(R, z + c)
 
 
 @dataclass
@@ -161,7 +209,7 @@ class _Problem:
         A, lower, upper, names = self.design()
         if not np.all(np.isfinite(A)):
             return WeightSolution(np.zeros(A.shape[1]), math.inf), A, names
-        return solve_weights(A, self.y, lower, upper), A, names
+        return solve_weights(A, self.y, lower, upper, self.model.weight_constraints(names)), A, names
 
     def residual(self, x: np.ndarray) -> np.ndarray:
         sol, A, _ = self.solve(self.to_theta(x))

@@ -161,6 +161,11 @@ class Component:
         A loop gain may scale earlier hysteresis blocks in place; nothing else writes to them."""
         raise NotImplementedError
 
+    def weight_constraints(self, names: list[str]) -> np.ndarray | None:
+        """Rows ``G`` of linear inequalities ``G @ w >= 0`` on the model's weights (named ``names``)
+        that the weight solve must keep, beyond the per-weight bounds; None: no such constraint."""
+        return None
+
     # -- persistence ----------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -271,11 +276,47 @@ class MPI(OperatorBase):
         return ["a2*v^2", "a1*v^3"]
 
 
+#: 004 eq. 16 kept with this margin by pmpi(invertible=yes): p0 * (1 - margin) >= |dP/dv|, so that
+#: the I-M iteration contracts by at least this much per pass (eq. 16 alone allows a factor of 1)
+EQ16_MARGIN = 0.1
+#: points of the training input range at which eq. 16 is imposed (dP/dv is a quadratic: its
+#: extremes are at the ends or its vertex, which a grid this fine brackets within 0.3 % of the span)
+EQ16_GRID = 201
+
+
 class PMPI(MPI):
     name = "pmpi"
     summary = "polynomial-modified PI of 004: M-play operators with eta (eq. 5-7) + cubic polynomial"
     eta_fixed = None
     span_kind = "full-range"
+    options_schema = {
+        "n": Option("int", default=10, minimum=1, doc=_N_OPERATORS),
+        "invertible": Option("choice", default="no", choices=("no", "yes"),
+                             doc="yes: the weights keep 004 eq. 16, p0 > max|3 a1 v^2 + 2 a2 v| over the training "
+                                 f"input range (with a {EQ16_MARGIN:.0%} margin), so that the I-M compensator "
+                                 "contracts without a proportional gain"),
+    }
+
+    def prepare(self, s: Signals) -> None:
+        super().prepare(s)
+        if "v_range" not in self.constants:
+            self.constants["v_range"] = [float(np.min(s.v)), float(np.max(s.v))]
+
+    def weight_constraints(self, names: list[str]) -> np.ndarray | None:
+        if self.options.get("invertible", "no") != "yes":
+            return None
+        try:
+            k0, k2, k3 = names.index("p0*v"), names.index("a2*v^2"), names.index("a1*v^3")
+        except ValueError:
+            return None
+        lo, hi = self.constants["v_range"]
+        v = np.linspace(lo, hi, EQ16_GRID)
+        slope = np.zeros((v.size, len(names)))  # dP/dv = 2 a2 v + 3 a1 v^2 as rows on the weights
+        slope[:, k2] = 2.0 * v
+        slope[:, k3] = 3.0 * v**2
+        rows = np.vstack([-slope, slope])
+        rows[:, k0] = 1.0 - EQ16_MARGIN
+        return rows
 
 
 class PD(OperatorBase):

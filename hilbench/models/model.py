@@ -76,6 +76,11 @@ class Model:
     def effect(self, name: str) -> Component | None:
         return next((e for e in self.effects if e.name == name or getattr(e, "channel", None) == name), None)
 
+    def weight_constraints(self, names: list[str]) -> np.ndarray | None:
+        """The components' linear inequalities on the weights, ``G @ w >= 0`` (None: none)."""
+        rows = [g for g in (c.weight_constraints(names) for c in self.components) if g is not None]
+        return np.vstack(rows) if rows else None
+
     @property
     def aux_channels(self) -> list[str]:
         return [e.channel for e in self.effects if isinstance(e, AuxChannel)]

@@ -1118,7 +1118,8 @@ class Compensator:
             raise InstabilityError(
                 f"004 eq. 20 fails for {self.model.spec!r} with k_e = {ke:.4g}: p0 + k_e = {p0 + ke:.4g} <= "
                 f"max|dP/dv - k_e| = {margin:.4g}: the I-M iteration would not contract (the model's "
-                "initial loading curve is not rising over the command range)", hint="use method='general'")
+                "initial loading curve is not rising over the command range)",
+                hint="use method='general', or fit the model as pmpi(invertible=yes), which keeps eq. 16")
         if ke:
             self.notes.append(f"eq. 16 fails (p0 = {p0:.4g} <= {worst:.4g}); eq. 20 gain k_e = {ke:.4g} applied"
                               if p0 <= worst else f"eq. 20 gain k_e = {ke:.4g} applied")

@@ -374,3 +374,55 @@ def test_rows_selected_per_block_equal_the_stacked_matrix(pi_h5):
     some, names_rows, _, _ = model.apply_dynamics(run, blocks, rows)
     assert names_rows == names and len(blocks) > 1
     np.testing.assert_array_equal(some, whole[rows])
+
+
+def test_weights_with_inequality_constraints_match_a_general_solver() -> None:
+    """solve_weights with rows G w >= 0 and bounds finds the constrained optimum: feasible, and no
+    worse than scipy's SLSQP started from the unconstrained solution; inactive rows change nothing."""
+    from scipy import optimize
+
+    from hilbench.identify.separable import solve_weights
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(400, 6)) * np.array([1.0, 10.0, 0.1, 1.0, 3.0, 1.0])
+    y = A @ np.array([1.0, -0.5, 4.0, -2.0, 0.3, 1.5]) + 0.1 * rng.normal(size=400)
+    lower = np.array([-np.inf, -np.inf, 0.0, -np.inf, -np.inf, 0.0])
+    upper = np.full(6, np.inf)
+    G = np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0, 0.0, 0.5], [0.0, 0.0, 0.0, 1.0, 1.0, 0.0]])
+    sol = solve_weights(A, y, lower, upper, G)
+    assert np.all(G @ sol.weights >= -1e-9) and np.all(sol.weights >= lower - 1e-12)
+    assert np.min(G @ sol.weights) < 1e-6  # the unconstrained optimum violates row 2: it is active
+    reference = optimize.minimize(
+        lambda w: float(np.sum((A @ w - y) ** 2)), np.linalg.lstsq(A, y, rcond=None)[0], method="SLSQP",
+        constraints=[{"type": "ineq", "fun": lambda w: G @ w}],
+        bounds=[(lo if np.isfinite(lo) else None, None) for lo in lower], options={"ftol": 1e-14, "maxiter": 500})
+    assert sol.sse <= reference.fun * (1 + 1e-7)  # SLSQP ends within its tolerance of the boundary
+    assert np.allclose(sol.weights, reference.x, atol=1e-4)
+    loose = solve_weights(A, y, lower, upper, np.array([[0.0, 0.0, 1.0, 0.0, 0.0, 0.0]]))  # w2 >= 0: a bound already
+    assert np.allclose(loose.weights, solve_weights(A, y, lower, upper).weights)
+
+
+def test_pmpi_invertible_keeps_eq16() -> None:
+    """pmpi(invertible=yes) keeps 004 eq. 16 with its margin over the training input range, where the
+    free fit of a loop with a steep polynomial part breaks it."""
+    from hilbench.models.components import EQ16_MARGIN
+
+    u = 10.0 * np.sin(2 * np.pi * np.arange(4000) / 1000.0)
+    v = u / 10.0
+    y = 0.5 * v + 3.0 * v**3 + 0.4 * np.sign(np.gradient(v)) * (1 - v**2)  # slope 9 at |v| = 1 >> p0
+    from hilbench.identify.separable import fit_model
+
+    run = RunData(u, y, {}, 1000.0)
+    free, held = Model("pmpi(n=4)"), Model("pmpi(n=4,invertible=yes)")
+    for model in (free, held):
+        fit_model(model, [run], [np.ones(u.size, dtype=bool)])
+
+    def eq16(model) -> tuple[float, float]:
+        w = dict(zip(model.weight_names, model.weights))
+        grid = np.linspace(*model.base.constants["v_range"], 1001)
+        return w["p0*v"], float(np.max(np.abs(2 * w["a2*v^2"] * grid + 3 * w["a1*v^3"] * grid**2)))
+
+    p0, worst = eq16(free)
+    assert p0 <= worst  # the free fit breaks eq. 16 here
+    p0, worst = eq16(held)
+    assert p0 * (1 - EQ16_MARGIN) >= worst * (1 - 1e-6)

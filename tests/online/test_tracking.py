@@ -175,7 +175,12 @@ def test_commands_never_leave_the_limits(bench: dict, values: list[float], repea
 def test_real_data_inverse_consistency(tmp_path: Path) -> None:
     """The inverse of the model fitted to the measured piezo stack, replayed through that model,
     reproduces the reference (within 0.5 % of its peak). The reference is the measured displacement
-    scaled by 0.95, so that it lies within what the model reaches over the recorded +-150 V."""
+    scaled by 0.95, so that it lies within what the model reaches over the recorded +-150 V.
+
+    The model is fitted as pmpi(invertible=yes): the free pmpi fit of this record lands, depending on
+    the machine's floating point, on either side of 004 eq. 16/20 (p0 = 2.37 against a polynomial
+    slope of 2.57 at -150 V on one machine), so 004's I-M compensator may refuse it; the constrained
+    fit keeps eq. 16 at a training error within 10 % of the free fit's."""
     from tests.conftest import require_real_data
     from tests.test_real_data import STACK_CSV, STACK_MAP
     from hilbench.models.stepping import compile_model
@@ -186,7 +191,9 @@ def test_real_data_inverse_consistency(tmp_path: Path) -> None:
         pytest.skip(f"{csv} not found")
     recording = tmp_path / "stack.h5"
     import_files([csv], recording, mapping=STACK_MAP)
-    result = fit(recording, "pmpi")
+    free = fit(recording, "pmpi")
+    result = fit(recording, "pmpi(invertible=yes)")
+    assert result.report.rmse < 1.1 * free.report.rmse
     run = result.runs[0].data
     model, fs = result.model, run.sample_rate_hz
     reference = 0.95 * run.output
@@ -194,6 +201,8 @@ def test_real_data_inverse_consistency(tmp_path: Path) -> None:
     figures = {}
     for method, iterations in (("general", 1), ("im", 20), ("im", 1)):
         comp = Compensator(model, fs, limits, method=method, iterations=iterations)
+        if method == "im":
+            assert comp.checks["eq16"]["holds"]
         u = comp.feedforward(reference)
         replay = compile_model(model, fs).block(u)
         figures[method, iterations] = 100 * np.max(np.abs(replay - reference)) / np.max(np.abs(reference))
