@@ -642,6 +642,10 @@ class Saturation(Component):
 CREEP_BANK_MOST = 16
 
 
+#: creep(form=log): the bank runs to this multiple of the record's length
+LOG_CREEP_BEYOND = 100.0
+
+
 def creep_bank_time_constants(duration_s: float, fs: float, per_decade: float = 3.0,
                               most: int = CREEP_BANK_MOST) -> np.ndarray:
     """The fixed Kelvin-Voigt bank of ``creep(form=bank)``: time constants (s) log-spaced from a few
@@ -675,18 +679,24 @@ class Creep(Component):
     collinear elements well posed (no alternating-sign pairs); the weights stay exact (bounded
     linear least squares). A logarithmic law gamma log10(1 + t / t0) is such a spectrum (flat per
     decade between t0 and the record's length).
+    form = log: that logarithmic law itself, gamma sum_j dv_j log10(1 + (t - t_j) / t0): the bank's
+    elements weighted by the law's spectrum exp(-t0 / tau) (:meth:`log_spectrum`), one weight
+    (gamma) and one searched onset time t0. One weight cannot trade slow elements against the
+    base's gain the way the free bank can on a short record, but a spectrum that is not of this
+    shape (discrete elements) it follows only in part.
     """
 
     name = "creep"
     summary = "slow drift after input changes: Kelvin-Voigt elements on the input and the hysteresis output"
-    FORMS = ("input", "output", "bank")
+    FORMS = ("input", "output", "bank", "log")
     options_schema = {"n": Option("int", default=2, minimum=1, maximum=12,
                                   doc="Kelvin-Voigt elements (time constants searched; form=input, output)"),
                       "form": Option("choice", default="input", choices=FORMS,
                                      doc="input: creep of the input; output: of the hysteresis output too; "
-                                     "bank: a fixed log-spaced bank from 3/fs to the record's length, weights >= 0"),
+                                     "bank: a fixed log-spaced bank from 3/fs to the record's length, weights >= 0; "
+                                     "log: that bank with one weight (a logarithmic law)"),
                       "per_decade": Option("number", default=3.0, minimum=0.5, maximum=6.0,
-                                           doc="elements per decade of time (form=bank; 16 at most)")}
+                                           doc="elements per decade of time (form=bank, log; 16 at most)")}
 
     def _form(self) -> str:
         return str(self.options.get("form", "input"))
@@ -694,11 +704,26 @@ class Creep(Component):
     def prepare(self, s: Signals) -> None:
         if self._form() not in self.FORMS:
             raise UserError(f"creep(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
-        if self._form() == "bank":
+        if self._form() in ("bank", "log"):
             if "taus" not in self.constants:
                 duration = s.u.shape[0] / s.fs
-                taus = creep_bank_time_constants(duration, s.fs, float(self.options.get("per_decade", 3.0)))
+                per_decade = float(self.options.get("per_decade", 3.0))
+                if self._form() == "log":
+                    # the law keeps rising after the record: elements far slower than the record
+                    # act within it as ramps t / tau, which a truncated spectrum would miss (on a
+                    # log law, 0.146 um left against the free bank's 0.034); with one weight for
+                    # them all they cost no freedom
+                    taus = creep_bank_time_constants(LOG_CREEP_BEYOND * duration, s.fs, per_decade,
+                                                     most=2 * CREEP_BANK_MOST)
+                else:
+                    taus = creep_bank_time_constants(duration, s.fs, per_decade)
                 self.constants["taus"] = [float(t) for t in taus]
+            if self._form() == "log" and not self.params:
+                taus = self.constants["taus"]
+                record = s.u.shape[0] / s.fs
+                self.params = [ShapeParam("t0", float(np.sqrt(taus[0] * record) / 10.0), 1.0 / s.fs,
+                                          max(record / 10.0, 2.0 / s.fs), "s", log=True,
+                                          doc="the logarithmic law's onset time t0: log10(1 + t / t0)")]
             return
         if self.params:
             return
@@ -711,9 +736,16 @@ class Creep(Component):
 
     def time_constants(self) -> np.ndarray:
         """The elements' time constants, s: the fixed bank's, or the searched ones."""
-        if self._form() == "bank":
+        if self._form() in ("bank", "log"):
             return np.asarray(self.constants.get("taus", []), float)
         return np.array([p.value for p in self.params], float)
+
+    def log_spectrum(self) -> np.ndarray:
+        """form=log: each bank element's share of the logarithmic law, exp(-t0 / tau) per element.
+
+        log(1 + t / t0) = int_0^inf (1 - exp(-t s)) exp(-t0 s) / s ds, so with tau = 1 / s the law's
+        retardation spectrum per d ln(tau) is exp(-t0 / tau): flat above t0, vanishing below it."""
+        return np.exp(-self.param("t0") / self.time_constants())
 
     def new_state(self) -> dict[str, Any]:
         return {"lp": np.zeros((self.time_constants().size, 1)), "started": False, "lp_h": None}
@@ -732,6 +764,8 @@ class Creep(Component):
         names = [f"creep[tau={t:.3g}s]" for t in taus]
         if self._form() == "bank":  # creep in the direction of the input change (see the class doc)
             return Columns.of(np.column_stack(cols), names, lower=0.0)
+        if self._form() == "log":  # the law's spectrum over the bank: one weight, the law's gamma
+            return Columns.of((np.column_stack(cols) @ self.log_spectrum())[:, None], ["creep[log]"], lower=0.0)
         if self._form() == "output":
             hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
             if hyst:

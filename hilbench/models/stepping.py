@@ -501,8 +501,13 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
         I[I_NCREEP] = nc
         I[I_CREEP_A] = f.put([1.0 - math.exp(-1.0 / (fs * t)) for t in taus])
         I[I_X_LP] = f.state(nc)
-        I[I_W_CREEP] = I[I_W] + k
-        k += nc
+        if str(creep.options.get("form", "input")) == "log":
+            # the logarithmic law: one weight over the whole bank, copied per element for the kernel
+            I[I_W_CREEP] = f.put(float(w[k]) * creep.log_spectrum())
+            k += 1
+        else:
+            I[I_W_CREEP] = I[I_W] + k
+            k += nc
         if str(creep.options.get("form", "input")) == "output":
             I[I_CREEP_OUT] = 1
             I[I_X_LPH] = f.state(nc * nk)

@@ -154,3 +154,32 @@ def test_bank_time_constants():
     assert creep_bank_time_constants(4 * 3600.0, 10_000.0).size == 16  # hours at 10 kHz: bounded
     short = creep_bank_time_constants(0.001, 1000.0)  # a record shorter than the bank's start: one decade
     assert 2 <= short.size <= 4 and math.isclose(short[-1], 0.03)
+
+
+@pytest.mark.parametrize("law", ["log", "kv"])
+def test_the_log_form_is_the_banks_flat_spectrum_with_one_weight(law):
+    """creep(form=log) weights the bank by the law's spectrum: on a logarithmic law it validates as
+    well as the free bank, finds the law's t0 and its weight is the law's gamma per decade; on
+    discrete Kelvin-Voigt elements it still removes most of the creep. The compiled step mode equals
+    the block simulation."""
+    train, test = creep_data(law, "input")
+    none, _ = _fit("pi", train, test)
+    bank, _ = _fit("pi+creep(form=bank)", train, test)
+    log, model = _fit("pi+creep(form=log)", train, test)
+    print(f"{law}: validation rmse no creep {none:.4f}, bank {bank:.4f}, log {log:.4f} um")
+    names = [n for n in model.weight_names if n.startswith("creep")]
+    assert names == ["creep[log]"] and [p.name for p in model.shape_params()] == ["t0"]
+    if law == "log":
+        t0 = model.effect("creep").param("t0")
+        assert 0.5 * LOG_T0 < t0 < 2.0 * LOG_T0, t0
+        assert log < 1.5 * bank and log < none / 3.0, (none, bank, log)
+        taus = model.effect("creep").time_constants()
+        w = float(model.weights[model.weight_names.index("creep[log]")])
+        per_decade = w * (taus.size - 1) / math.log10(taus[-1] / taus[0])
+        assert abs(per_decade - LOG_GAMMA) < 0.3 * LOG_GAMMA, per_decade
+    else:
+        assert log < none / 2.0, (none, bank, log)
+    stepper = model.stepper(FS)
+    stepped = np.array([stepper.step(float(u)) for u in train.input[:20000]])
+    assert stepper.compiled is not None, stepper.fallback_reason
+    np.testing.assert_allclose(stepped, model.simulate(train)[:20000], atol=1e-9)

@@ -56,7 +56,7 @@ ALL_BASES = ["linear", "pi", "pi1", "mpi", "pmpi", "pd", "fpmpi", "duhem-g", "du
              "bouc-wen(n=2)"]
 EFFECT_SPECS = [
     "pi+asymmetry", "pi+asymmetry(order=3)", "pi+saturation", "pi+saturation(form=input)", "pi+saturation(form=knee)",
-    "pi+creep", "pi+creep(form=bank)", "pi+asymmetry+creep(form=bank,per_decade=3)+dynamics",
+    "pi+creep", "pi+creep(form=bank)", "pi+creep(form=log)", "pi+asymmetry+creep(form=bank,per_decade=3)+dynamics",
     "pi+creep(n=3,form=output)", "pi+rate-dependence(form=damping)", "pi1+asymmetry+rate-dependence(form=frequency)",
     "pi+rate-dependence(form=frequency,waveform=triangle)", "pmpi+dynamics", "fpmpi+dynamics+delay", "pi+temperature",
     "pi(n=16)+delay+dynamics(kind=first-order)", "pi+dynamics(kind=discrete,pairs=1,zeros=1)",
