@@ -59,26 +59,20 @@ def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.nda
         R = np.linalg.cholesky(G).T
     c = np.linalg.solve(R.T, b)
     lo, hi = lower * scale, upper * scale
+    ws = _bounded(R, c, lo, hi)
     if constraints is not None and constraints.size:
-        ws = _bounded(R, c, lo, hi)
-        G = constraints / scale  # rows on the scaled weights
-        if np.min(G @ ws) < -1e-12 * max(float(np.max(np.abs(G @ ws))), 1e-300):
-            ws = _least_squares_with_inequalities(R, c, lo, hi, G)
-    elif np.all(np.isinf(lo)) and np.all(np.isinf(hi)):
-        ws = np.linalg.solve(R, c)
-    else:
-        unconstrained = np.linalg.solve(R, c)
-        if np.all(unconstrained >= lo) and np.all(unconstrained <= hi):
-            ws = unconstrained
-        else:
-            ws = optimize.lsq_linear(R, c, bounds=(lo, hi), method="bvls", tol=1e-12).x
+        rows = constraints / scale  # the inequalities on the scaled weights
+        kept = rows @ ws
+        if np.min(kept) < -1e-12 * max(float(np.max(np.abs(kept))), 1e-300):
+            ws = _least_squares_with_inequalities(R, c, lo, hi, rows)
     w = ws / scale
     r = A @ w - y
     return WeightSolution(w, float(r @ r))
 
 
 def _bounded(R: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """min ||R w - c|| subject to lo <= w <= hi (R square, upper triangular)."""
+    """min ||R w - c|| subject to lo <= w <= hi (R square, upper triangular): the unconstrained
+    solution when it keeps the bounds (no bound is finite, or none is active), else BVLS."""
     unconstrained = np.linalg.solve(R, c)
     if np.all(unconstrained >= lo) and np.all(unconstrained <= hi):
         return unconstrained
