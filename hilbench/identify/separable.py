@@ -438,10 +438,12 @@ def _fit_model(
         scored = _scored(problem, _start_points(model, runs, train_masks, problem, x0, fresh, global_starts, seed))
         best_x, best_sse = scored[0][1], scored[0][0]
         local = scored[: max(1, local_starts)]
-        if warm and not any(id(p) in warm for p in model.base.shape()):
+        if warm and (local_starts < 2 or not any(id(p) in warm for p in model.base.shape())):
             # only effects' shapes were copied: they are near their optimum and the scan placed
             # the new parameters, so one local search (a second converged to the same point in
-            # the refits measured, at twice the cost; decision 0017)
+            # the refits measured, at twice the cost; decision 0017). A caller asking for one
+            # search keeps the copied shape's basin on purpose: a staged identification (000
+            # sec. 4.1: the hysteresis from the slow ramp, then the dynamics from the noise runs)
             local = scored[:1]
         elif warm:
             # Two local searches when the hysteresis base's shape was copied: one from the warm
