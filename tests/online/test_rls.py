@@ -213,7 +213,9 @@ def test_huber_weights_moderate_errors_and_skips_gross_ones():
     assert gross.status == R.OUTLIER_SKIPPED
     np.testing.assert_array_equal(gross.theta, rls.theta)
     np.testing.assert_array_equal(gross.P, rls.P)
-    assert gross.st[R.ST_CLEAN] == pred
+    # the prediction stands in for the skipped sample; the kernel's dot product and numpy's BLAS
+    # may sum in another order (the last bit differed on one CI run), so not bit-for-bit
+    assert gross.st[R.ST_CLEAN] == pytest.approx(pred, rel=1e-12)
     assert gross.counters()["outliers"] == rls.counters()["outliers"] + 1
     plain_huber = _clone(rls, lam=0.999, reject_k=1e9)  # no gross-error threshold: weighted too
     plain_huber.step(phi[k], pred + 80.0 * scale)
