@@ -76,8 +76,9 @@ def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
 
     try:
         t1 = time.perf_counter()
-        # with auto, the first round of the auto run is the plain diagnosis (the same fits): one call
-        da = diagnose(paths, case.spec, auto=auto, **kw)
+        # with auto, the first round of the auto run is the plain diagnosis (the same fits): one call;
+        # one process per case (the cases themselves run in --workers processes)
+        da = diagnose(paths, case.spec, auto=auto, jobs=1, **kw)
         d = da.rounds[0] if auto and da.rounds else da
         out["diagnose_s" if not auto else "auto_s"] = time.perf_counter() - t1
         sig = [c.effect for c in d.effects if c.significant]

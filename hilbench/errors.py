@@ -8,6 +8,8 @@ stdout; ``--debug`` shows the traceback. Everything else is a bug and keeps its 
 
 from __future__ import annotations
 
+from typing import Any
+
 
 class UserError(Exception):
     """A problem with the user's input, reported as one line.
@@ -21,9 +23,17 @@ class UserError(Exception):
         self.hint = hint
         super().__init__(self.line())
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        # raised in a worker process (diagnosis/workers.py), it is pickled to the caller whole
+        return (_rebuild_user_error, (type(self), self.message, self.where, self.hint))
+
     def line(self) -> str:
         text = f"{self.where}: {self.message}" if self.where else self.message
         return " ".join(text.split())  # one line, whatever the parts contained
+
+
+def _rebuild_user_error(cls: type[UserError], message: str, where: str | None, hint: str | None) -> UserError:
+    return cls(message, where=where, hint=hint)
 
 
 def error_line(message: str, hint: str | None = None) -> str:

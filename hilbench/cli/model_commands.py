@@ -124,6 +124,9 @@ def diagnose(
     report: Optional[Path] = typer.Option(None, "--report", metavar="DIR",
                                           help="Write a self-contained HTML report (DIR/report.html)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar on stderr."),
+    jobs: Optional[int] = typer.Option(None, "--jobs", "-j", metavar="N",
+                                       help="Worker processes for the refits of each round (default: one per core, "
+                                       "at most 8; the result does not depend on it)."),
 ) -> None:
     """Compare a model with measurements: where it fails, which physical effect is missing.
 
@@ -143,7 +146,7 @@ def diagnose(
     with show_progress(quiet):
         trim = Trim(auto=True, from_s=from_s, to_s=to_s, windows=[parse_window(w) for w in exclude])
         result = run_diagnosis(data, model, train=train or None, test=test or None, add=add, auto=auto,
-                               train_fraction=train_fraction, trim=trim)
+                               train_fraction=train_fraction, trim=trim, jobs=jobs)
     document = result.to_json()
     page = None
     if report is not None:

@@ -32,31 +32,44 @@ def with_base(spec: str, base: str) -> str:
     return "+".join([base, *parts[1:]])
 
 
-def wrong_base(paths: Any, base: FitResult, kw: dict[str, Any], noise: float,
+def alternatives(base: FitResult, noise: float) -> list[str]:
+    """The specs :func:`wrong_base` fits: ``base.spec`` on every base of another family, none when the
+    validation error is near the noise (the loop shape is right enough) or the base is memoryless
+    (it needs hysteresis, not another loop)."""
+    current = split_spec(base.spec)[0][0]
+    if not base.metrics["validation"]["rmse"] > T.WRONG_BASE_NOISE_FACTOR * noise or current == "linear":
+        return []
+    return [with_base(base.spec, b) for b in ALTERNATIVE_BASES if b != current]
+
+
+def fit_alternative(paths: Any, base: FitResult, spec: str, kw: dict[str, Any]) -> FitResult | None:
+    """``spec`` (an :func:`alternatives` spec) fitted; None when its base cannot carry the effects."""
+    try:
+        # the effects start from their fitted shape; only the new base is searched globally
+        return fit(paths, spec, **kw, start_from=base.model)
+    except UserError:
+        return None  # an effect the alternative cannot carry (e.g. asymmetry on pmpi's polynomial)
+
+
+def wrong_base(base: FitResult, fitted: Sequence[FitResult | None], noise: float,
                effect_rmse: Sequence[float] = ()) -> Candidate | None:
     """The best base of another family when it fits far better (module docstring); else None.
 
+    ``fitted``: the :func:`alternatives` of ``base`` as :func:`fit_alternative` returned them.
     ``effect_rmse``: the validation rmse each single effect reached on the current base. Another
     base must beat the best of them by WRONG_BASE_RATIO too: a base whose terms include an effect
     (PMPI's cubic polynomial is asymmetry) is no evidence that the loop shape is wrong when adding
     that effect does as well."""
     current = split_spec(base.spec)[0][0]
     old_v, old_t = base.metrics["validation"]["rmse"], base.metrics["train"]["rmse"]
-    if not old_v > T.WRONG_BASE_NOISE_FACTOR * noise or current == "linear":
-        return None  # near the noise the loop shape is right enough; a memoryless base needs hysteresis
     tried: dict[str, float] = {}
     best: FitResult | None = None
-    for alternative in ALTERNATIVE_BASES:
-        if alternative == current:
+    for f in fitted:
+        if f is None:
             continue
-        try:
-            # the effects start from their fitted shape; only the new base is searched globally
-            fitted = fit(paths, with_base(base.spec, alternative), **kw, start_from=base.model)
-        except UserError:
-            continue  # an effect the alternative cannot carry (e.g. asymmetry on pmpi's polynomial)
-        tried[alternative] = fitted.metrics["validation"]["rmse"]
-        if best is None or fitted.metrics["validation"]["rmse"] < best.metrics["validation"]["rmse"]:
-            best = fitted
+        tried[split_spec(f.spec)[0][0]] = f.metrics["validation"]["rmse"]
+        if best is None or f.metrics["validation"]["rmse"] < best.metrics["validation"]["rmse"]:
+            best = f
     if best is None:
         return None
     new_v, new_t = best.metrics["validation"]["rmse"], best.metrics["train"]["rmse"]

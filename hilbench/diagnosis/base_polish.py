@@ -15,24 +15,27 @@ rows only, so the validation comparison stays fair). Docs: docs/decisions/0024.
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.verdict import Candidate, relative_gain
+from hilbench.diagnosis.workers import run_tasks
 from hilbench.identify.fitting import FitResult, fit
 
 
-def polished_base(paths: Any, base: FitResult, cands: list[Candidate], kw: dict[str, Any]) -> FitResult | None:
+def polished_base(paths: Any, base: FitResult, cands: list[Candidate], kw: dict[str, Any],
+                  jobs: int = 1) -> FitResult | None:
     """The base spec refitted from the best significant candidate's shape, when that fits the
-    training rows better than ``base`` by more than POLISH_MIN_TRAIN_GAIN; else None."""
+    training rows better than ``base`` by more than POLISH_MIN_TRAIN_GAIN; else None. The refits
+    run in up to ``jobs`` processes (:mod:`hilbench.diagnosis.workers`)."""
+    starts = [c.fitted.model for c in cands if c.significant and c.fitted is not None]
+    refits = run_tasks([partial(fit, paths, base.spec, start_from=m, **kw) for m in starts], jobs)
     best: FitResult | None = None
-    old_t = base.metrics["train"]["rmse"]
-    for c in cands:
-        if not c.significant or c.fitted is None:
-            continue
-        refit = fit(paths, base.spec, start_from=c.fitted.model, **kw)
+    for refit in refits:
         if best is None or refit.metrics["train"]["rmse"] < best.metrics["train"]["rmse"]:
             best = refit
+    old_t = base.metrics["train"]["rmse"]
     if best is None or relative_gain(old_t, best.metrics["train"]["rmse"]) <= T.POLISH_MIN_TRAIN_GAIN:
         return None
     return best

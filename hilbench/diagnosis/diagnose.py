@@ -35,12 +35,13 @@ times in s, gains as fractions.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from hilbench import progress
-from hilbench.diagnosis.base_check import wrong_base
+from hilbench.diagnosis.base_check import alternatives, fit_alternative, wrong_base
 from hilbench.diagnosis.base_polish import polished_base
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.refit import fit_effect
@@ -48,6 +49,7 @@ from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.verdict import Candidate, judge, rank, verdict
 from hilbench.diagnosis.where import where
+from hilbench.diagnosis.workers import check_jobs, run_tasks
 from hilbench.identify.dataset import Dataset, as_dataset
 from hilbench.identify.trimming import Trim
 from hilbench.identify.fitting import FitResult, PathLike, finite_json, fit, fit_or_evaluate
@@ -87,19 +89,24 @@ class Diagnosis:
         return finite_json(out)
 
 
-def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis:
+def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any], jobs: int) -> Diagnosis:
     rows = residual_rows(base)
     noise = noise_floor(rows)  # the sensor's, from the measured output (diagnosis/noise.py)
     plan = testable(base.spec, base)
     every = residual_rows(base, "all")  # evidence from all rows: holds and steps may all lie in training
-    cands = []
     plans = {eff: plan.plan if eff in plan.calibrated else None for eff in plan.tries}
-    with progress.task(f"diagnose {base.spec}: effects", total=len(plan.tries)) as advance:
-        for eff in plan.tries:
-            advance(0, f"diagnose {base.spec}: trying {eff}")
-            cands.append(judge(paths, base, eff, every, noise, kw, plans[eff]))
-            advance(1)
-    polished = polished_base(paths, base, cands, kw)
+    others = alternatives(base, noise)
+    # every candidate refit and every alternative base is fitted from the same base: one batch of
+    # independent tasks for the worker processes (diagnosis/workers.py)
+    tasks: list[Callable[[], Any]] = [partial(judge, paths, base, eff, every, noise, kw, plans[eff])
+                                      for eff in plan.tries]
+    tasks += [partial(fit_alternative, paths, base, spec, kw) for spec in others]
+    names = [f"diagnose {base.spec}: {eff}" for eff in plan.tries] + [f"diagnose {base.spec}: base {s}" for s in others]
+    with progress.task(f"diagnose {base.spec}: effects and bases", total=len(tasks)) as advance:
+        done = run_tasks(tasks, jobs, advance, names)
+    cands: list[Candidate] = done[: len(plan.tries)]
+    other_fits: list[FitResult | None] = done[len(plan.tries):]
+    polished = polished_base(paths, base, cands, kw, jobs)
     if polished is not None:
         # the base had stopped at a poor optimum that the refits' searches left: judge every
         # refit against the base at its better optimum (diagnosis/base_polish.py)
@@ -110,8 +117,10 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any]) -> Diagnosis
         base, rows, every = polished, residual_rows(polished), residual_rows(polished, "all")
         cands = [verdict(base, c.effect, c.fitted, every, noise, plans[c.effect]) if c.fitted is not None else c
                  for c in cands]
-    cands += pair_candidates(paths, base, cands, every, noise, kw)  # overlapping effects, judged together
-    other_base = wrong_base(paths, base, kw, noise, [c.evidence["validation_rmse"][1] for c in cands])
+        others = alternatives(base, noise)  # the alternatives start from the base's shape: refit them
+        other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs)
+    cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
+    other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
         cands.append(other_base)
     rank(cands)
@@ -149,6 +158,7 @@ def diagnose(
     max_steps: int = 4,
     train_fraction: float = 0.7,
     trim: Trim | None = None,
+    jobs: int | None = None,
 ) -> Diagnosis:
     """Fit (or load) the model, find where it fails and which effect is missing.
 
@@ -159,7 +169,10 @@ def diagnose(
     spec refitted on the same split, so both sides of every comparison saw the same training rows.
     ``trim`` leaves rows out of training and scoring; by default (``Trim(auto=True)``) the rest at the
     start of a capture whose history is unknown (an imported file), which the notes say.
+    ``jobs``: worker processes for the refits of a round (default one per core, at most 8;
+    :mod:`hilbench.diagnosis.workers`); the result does not depend on it.
     """
+    jobs = check_jobs(jobs)
     kw = {"train": train, "test": test, "train_fraction": train_fraction}
     # read once: every refit below works on the same samples and the same trimmed rows
     paths = as_dataset(paths).trimmed(trim if trim is not None else Trim(auto=True))
@@ -169,7 +182,7 @@ def diagnose(
     if add is not None:
         base = _add(paths, base, add, kw)
         steps.append(_step(base, add))
-    result = _diagnose_once(paths, base, kw)
+    result = _diagnose_once(paths, base, kw, jobs)
     _keep_polished(steps, base, result)
     rounds = [result]
     if auto:
@@ -179,7 +192,7 @@ def diagnose(
                 advance(1, f"diagnose --auto: step {len(steps)}, added {best.effect}")
                 base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
                 steps.append(_step(base, best.effect))
-                result = _diagnose_once(paths, base, kw)
+                result = _diagnose_once(paths, base, kw, jobs)
                 _keep_polished(steps, base, result)
                 rounds.append(result)
     result.rounds = rounds

@@ -22,6 +22,7 @@ as one step (the spec gains both effects). Thresholds: :mod:`hilbench.diagnosis.
 
 from __future__ import annotations
 
+from functools import partial
 from itertools import combinations
 from typing import Any
 
@@ -31,6 +32,7 @@ from hilbench.diagnosis.evidence import EVIDENCE_CHECKS
 from hilbench.diagnosis.refit import added_parts
 from hilbench.diagnosis.rows import ResidualRows
 from hilbench.diagnosis.verdict import Candidate, judge, relative_gain
+from hilbench.diagnosis.workers import run_tasks
 from hilbench.identify.fitting import FitResult
 
 #: the checks of a single verdict that say whether its gain carried over to validation
@@ -121,15 +123,15 @@ def judge_pair(paths: Any, base: FitResult, a: Candidate, b: Candidate, rows: Re
 
 
 def pair_candidates(paths: Any, base: FitResult, cands: list[Candidate], rows: ResidualRows, noise: float,
-                    kw: dict[str, Any]) -> list[Candidate]:
+                    kw: dict[str, Any], jobs: int = 1) -> list[Candidate]:
     """Pairs of overlapping effects judged jointly, when the singles call for it (module docstring);
-    the members keep the order of ``cands`` (the registry's)."""
+    the members keep the order of ``cands`` (the registry's). The pairs' refits run in up to
+    ``jobs`` processes (:mod:`hilbench.diagnosis.workers`)."""
     members = should_try(cands)
     order = {id(c): k for k, c in enumerate(cands)}
-    out = []
+    pairs = []
     for a, b in combinations(members, 2):
         if not (_learned_but_failed(a) or _learned_but_failed(b)):
             continue
-        a, b = sorted((a, b), key=lambda m: order[id(m)])
-        out.append(judge_pair(paths, base, a, b, rows, noise, kw))
-    return out
+        pairs.append(sorted((a, b), key=lambda m: order[id(m)]))
+    return run_tasks([partial(judge_pair, paths, base, a, b, rows, noise, kw) for a, b in pairs], jobs)
