@@ -21,16 +21,17 @@ from typing import Any
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.verdict import Candidate, relative_gain
 from hilbench.diagnosis.workers import run_tasks
+from hilbench.identify.dataset import Dataset
 from hilbench.identify.fitting import FitResult, fit
 
 
-def polished_base(paths: Any, base: FitResult, cands: list[Candidate], kw: dict[str, Any],
+def polished_base(paths: Dataset, base: FitResult, cands: list[Candidate], kw: dict[str, Any],
                   jobs: int = 1) -> FitResult | None:
     """The base spec refitted from the best significant candidate's shape, when that fits the
     training rows better than ``base`` by more than POLISH_MIN_TRAIN_GAIN; else None. The refits
     run in up to ``jobs`` processes (:mod:`hilbench.diagnosis.workers`)."""
     starts = [c.fitted.model for c in cands if c.significant and c.fitted is not None]
-    refits = run_tasks([partial(fit, paths, base.spec, start_from=m, **kw) for m in starts], jobs)
+    refits = run_tasks([partial(fit, paths, base.spec, start_from=m, **kw) for m in starts], jobs, shared=paths.runs)
     best: FitResult | None = None
     for refit in refits:
         if best is None or refit.metrics["train"]["rmse"] < best.metrics["train"]["rmse"]:

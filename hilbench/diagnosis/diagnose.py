@@ -89,7 +89,7 @@ class Diagnosis:
         return finite_json(out)
 
 
-def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any], jobs: int) -> Diagnosis:
+def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: int) -> Diagnosis:
     rows = residual_rows(base)
     noise = noise_floor(rows)  # the sensor's, from the measured output (diagnosis/noise.py)
     plan = testable(base.spec, base)
@@ -103,7 +103,7 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any], jobs: int) -
     tasks += [partial(fit_alternative, paths, base, spec, kw) for spec in others]
     names = [f"diagnose {base.spec}: {eff}" for eff in plan.tries] + [f"diagnose {base.spec}: base {s}" for s in others]
     with progress.task(f"diagnose {base.spec}: effects and bases", total=len(tasks)) as advance:
-        done = run_tasks(tasks, jobs, advance, names)
+        done = run_tasks(tasks, jobs, advance, names, shared=paths.runs)
     cands: list[Candidate] = done[: len(plan.tries)]
     other_fits: list[FitResult | None] = done[len(plan.tries):]
     polished = polished_base(paths, base, cands, kw, jobs)
@@ -118,7 +118,8 @@ def _diagnose_once(paths: Any, base: FitResult, kw: dict[str, Any], jobs: int) -
         cands = [verdict(base, c.effect, c.fitted, every, noise, plans[c.effect]) if c.fitted is not None else c
                  for c in cands]
         others = alternatives(base, noise)  # the alternatives start from the base's shape: refit them
-        other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs)
+        other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs,
+                               shared=paths.runs)
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
     other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:

@@ -33,6 +33,7 @@ from hilbench.diagnosis.refit import added_parts
 from hilbench.diagnosis.rows import ResidualRows
 from hilbench.diagnosis.verdict import Candidate, judge, relative_gain
 from hilbench.diagnosis.workers import run_tasks
+from hilbench.identify.dataset import Dataset
 from hilbench.identify.fitting import FitResult
 
 #: the checks of a single verdict that say whether its gain carried over to validation
@@ -122,7 +123,7 @@ def judge_pair(paths: Any, base: FitResult, a: Candidate, b: Candidate, rows: Re
     return c
 
 
-def pair_candidates(paths: Any, base: FitResult, cands: list[Candidate], rows: ResidualRows, noise: float,
+def pair_candidates(paths: Dataset, base: FitResult, cands: list[Candidate], rows: ResidualRows, noise: float,
                     kw: dict[str, Any], jobs: int = 1) -> list[Candidate]:
     """Pairs of overlapping effects judged jointly, when the singles call for it (module docstring);
     the members keep the order of ``cands`` (the registry's). The pairs' refits run in up to
@@ -134,4 +135,5 @@ def pair_candidates(paths: Any, base: FitResult, cands: list[Candidate], rows: R
         if not (_learned_but_failed(a) or _learned_but_failed(b)):
             continue
         pairs.append(sorted((a, b), key=lambda m: order[id(m)]))
-    return run_tasks([partial(judge_pair, paths, base, a, b, rows, noise, kw) for a, b in pairs], jobs)
+    return run_tasks([partial(judge_pair, paths, base, a, b, rows, noise, kw) for a, b in pairs], jobs,
+                     shared=paths.runs)

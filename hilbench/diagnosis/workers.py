@@ -4,9 +4,12 @@ A diagnosis round refits the model once per candidate effect and once per altern
 refits share nothing but their inputs (the dataset, the fitted base, the split), so they can run at
 the same time. They are CPU-bound Python around numpy and numba, which holds the GIL for much of a
 fit, so the workers are processes. They are forked: a child starts with the parent's memory (the
-dataset, the base, the compiled kernels) and only the results travel back, pickled. Results come
-back in the order of the tasks, so the verdicts do not depend on ``jobs``; a task's exception is
-raised in the caller as if the task had run there.
+dataset, the base, the compiled kernels) and only the results travel back, pickled. A result
+refers to the caller's recorded runs (a fit's runs hold their data): the objects named ``shared``
+are pickled as references and resolved to the caller's own on return, so each result carries its
+fit's arrays only, not another copy of the recording. Results come back in the order of the tasks,
+so the verdicts do not depend on ``jobs``; a task's exception is raised in the caller as if the task
+had run there.
 
 Where fork is not the platform's safe default (Windows, macOS) or the caller is itself a daemonic
 worker (a multiprocessing pool's), the tasks run one after the other in the caller. Docs:
@@ -15,8 +18,10 @@ docs/decisions/0028.
 
 from __future__ import annotations
 
+import io
 import multiprocessing
 import os
+import pickle
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -34,6 +39,7 @@ MAX_JOBS = 8
 # The tasks of the pool being run. Set before the pool forks its workers, which inherit them; a
 # worker receives only the index of the task to run (closures need not be picklable).
 _tasks: Sequence[Callable[[], Any]] = ()
+_shared: dict[int, int] = {}  # id() of an object the caller shares (the same in a forked child) -> index
 _in_worker = False  # a worker's own tasks run in it: no pools of pools
 
 
@@ -55,8 +61,7 @@ def check_jobs(jobs: int | None) -> int:
     if jobs is None:
         return default_jobs()
     if isinstance(jobs, bool) or not isinstance(jobs, int) or not 1 <= jobs <= 256:
-        raise UserError(f"jobs {jobs!r}: expected a whole number of worker processes from 1 to 256",
-                        where="--jobs")
+        raise UserError(f"expected a whole number of worker processes from 1 to 256, got {jobs!r}", where="--jobs")
     return jobs
 
 
@@ -72,16 +77,33 @@ def _worker_start() -> None:
     progress._display = None
 
 
-def _run(index: int) -> Any:
-    return _tasks[index]()
+class _SharedPickler(pickle.Pickler):
+    def persistent_id(self, obj: Any) -> int | None:
+        return _shared.get(id(obj))
+
+
+class _SharedUnpickler(pickle.Unpickler):
+    def __init__(self, data: bytes, shared: Sequence[Any]):
+        super().__init__(io.BytesIO(data))
+        self.shared = shared
+
+    def persistent_load(self, pid: Any) -> Any:
+        return self.shared[pid]
+
+
+def _run(index: int) -> bytes:
+    out = io.BytesIO()
+    _SharedPickler(out, protocol=pickle.HIGHEST_PROTOCOL).dump(_tasks[index]())
+    return out.getvalue()
 
 
 def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[..., None] = progress._noop,
-              names: Sequence[str] | None = None) -> list[T]:
+              names: Sequence[str] | None = None, shared: Sequence[Any] = ()) -> list[T]:
     """Every task's result, in the order of ``tasks``; up to ``jobs`` run at once (module docstring).
 
     ``advance(1, text)`` is called as each task finishes (``names`` label them). Long tasks should
-    come first: the pool hands them out in order."""
+    come first: the pool hands them out in order. ``shared``: objects the results may refer to
+    that stay the caller's (the recorded runs), not copied back."""
     labels = list(names) if names is not None else [str(k) for k in range(len(tasks))]
     if jobs <= 1 or len(tasks) <= 1 or not _can_fork():
         out = []
@@ -89,8 +111,9 @@ def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[...
             out.append(task())
             advance(1, f"{label} done")
         return out
-    global _tasks
+    global _tasks, _shared
     previous, _tasks = _tasks, tasks
+    previous_shared, _shared = _shared, {id(obj): k for k, obj in enumerate(shared)}
     try:
         context = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context,
@@ -102,7 +125,8 @@ def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[...
                 while pending:
                     done, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for f in done:
-                        results[futures[f]] = f.result()  # a task's exception is raised here
+                        # a task's exception is raised here
+                        results[futures[f]] = _SharedUnpickler(f.result(), shared).load()
                         advance(1, f"{labels[futures[f]]} done")
             except BaseException:
                 for f in pending:
@@ -110,4 +134,4 @@ def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[...
                 raise
         return [results[k] for k in range(len(tasks))]
     finally:
-        _tasks = previous
+        _tasks, _shared = previous, previous_shared

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from hilbench.diagnosis.diagnose import diagnose
@@ -37,6 +38,15 @@ def test_tasks_run_in_other_processes_and_come_back_in_order():
     assert os.getpid() not in pids and len(pids) == 2
     assert sorted(advanced) == [f"t{k} done" for k in range(5)]
     assert advanced[-1] == "t0 done"  # progress follows completion, not submission
+
+
+@linux_only
+def test_shared_objects_come_back_as_the_callers_own():
+    big = [np.arange(10.0), np.ones(3)]
+    out = run_tasks([lambda: {"data": big[0], "pid": os.getpid()}, lambda: (big[1], big[0] * 2)], 2, shared=big)
+    assert out[0]["data"] is big[0] and out[1][0] is big[1]  # references, not copies
+    assert out[0]["pid"] != os.getpid()
+    np.testing.assert_array_equal(out[1][1], big[0] * 2)  # what a task made is copied back
 
 
 def test_one_job_runs_in_the_caller():
@@ -73,6 +83,10 @@ def test_the_diagnosis_does_not_depend_on_jobs(tmp_path):
     two = diagnose(out, "pmpi", jobs=2)
     assert any(c.effect == "base" for c in one.effects)  # the alternative bases were fitted
     assert json.dumps(one.to_json(), sort_keys=True) == json.dumps(two.to_json(), sort_keys=True)
+    # the refits came back from the workers referring to the caller's recorded runs, not copies
+    recorded = [r.data for r in two.result.runs]
+    fitted = [c.fitted for c in two.effects if c.fitted is not None]
+    assert fitted and all(r.data is d for f in fitted for r, d in zip(f.runs, recorded))
 
 
 def test_cli_rejects_a_bad_jobs_value(tmp_path):
