@@ -97,6 +97,15 @@ def _run(index: int) -> bytes:
     return out.getvalue()
 
 
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Cancel the tasks not started and end the workers now, mid-fit."""
+    # the processes first: shutdown forgets them (Python 3.14 has terminate_workers() for this)
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+
+
 def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[..., None] = progress._noop,
               names: Sequence[str] | None = None, shared: Sequence[Any] = ()) -> list[T]:
     """Every task's result, in the order of ``tasks``; up to ``jobs`` run at once (module docstring).
@@ -129,8 +138,7 @@ def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[...
                         results[futures[f]] = _SharedUnpickler(f.result(), shared).load()
                         advance(1, f"{labels[futures[f]]} done")
             except BaseException:
-                for f in pending:
-                    f.cancel()
+                _stop(pool)  # an error or Ctrl-C: the other refits are not waited for
                 raise
         return [results[k] for k in range(len(tasks))]
     finally:

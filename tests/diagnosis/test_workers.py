@@ -66,6 +66,15 @@ def test_a_task_error_is_raised_in_the_caller_whole():
     assert str(info.value) == "run.h5: run2: no column 'output'"
 
 
+@linux_only
+def test_an_error_ends_the_other_workers_without_waiting_for_them():
+    t0 = time.monotonic()
+    with pytest.raises(DataError):
+        run_tasks([lambda: time.sleep(120), lambda: (time.sleep(0.5), _bad())], 2)
+    # the sleeping worker was terminated, not waited for (it would take 120 s)
+    assert time.monotonic() - t0 < 60
+
+
 def test_jobs_are_checked():
     assert check_jobs(None) == default_jobs() >= 1
     assert check_jobs(3) == 3
