@@ -18,10 +18,12 @@ docs/decisions/0028.
 
 from __future__ import annotations
 
+import ctypes
 import io
 import multiprocessing
 import os
 import pickle
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -41,6 +43,7 @@ MAX_JOBS = 8
 _tasks: Sequence[Callable[[], Any]] = ()
 _shared: dict[int, int] = {}  # id() of an object the caller shares (the same in a forked child) -> index
 _in_worker = False  # a worker's own tasks run in it: no pools of pools
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def available_cores() -> int:
@@ -70,11 +73,24 @@ def _can_fork() -> bool:
             and not multiprocessing.current_process().daemon and not _in_worker)
 
 
-def _worker_start() -> None:
+def _worker_start(parent: int) -> None:
     global _in_worker
     _in_worker = True
     # the parent shows the progress of the round; a child's nested fits would draw over it
     progress._display = None
+    _end_with_parent(parent)
+
+
+def _end_with_parent(parent: int) -> None:
+    """A worker of a caller that was killed (SIGTERM, SIGKILL) would wait for tasks forever, holding
+    a copy of its memory: Linux sends it SIGTERM when the caller ends (prctl PR_SET_PDEATHSIG)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the caller ended before the request took effect
+        os._exit(1)
 
 
 class _SharedPickler(pickle.Pickler):
@@ -126,7 +142,7 @@ def run_tasks(tasks: Sequence[Callable[[], T]], jobs: int, advance: Callable[...
     try:
         context = multiprocessing.get_context("fork")
         with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context,
-                                 initializer=_worker_start) as pool:
+                                 initializer=_worker_start, initargs=(os.getpid(),)) as pool:
             futures = {pool.submit(_run, k): k for k in range(len(tasks))}
             results: dict[int, Any] = {}
             pending = set(futures)

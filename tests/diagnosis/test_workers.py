@@ -75,6 +75,45 @@ def test_an_error_ends_the_other_workers_without_waiting_for_them():
     assert time.monotonic() - t0 < 60
 
 
+_KILLED_CALLER = """
+import os, sys, time
+from hilbench.diagnosis.workers import run_tasks
+def task():
+    with open(sys.argv[1], "a") as f:
+        f.write(f"{os.getpid()}\\n")
+    time.sleep(300)
+run_tasks([task, task], 2)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    with open(f"/proc/{pid}/stat") as f:  # a zombie is dead, only not yet reaped
+        return f.read().rsplit(")", 1)[1].split()[0] != "Z"
+
+
+@linux_only
+def test_workers_end_when_their_caller_is_killed(tmp_path):
+    pids_file = tmp_path / "pids"
+    caller = subprocess.Popen([sys.executable, "-c", _KILLED_CALLER, str(pids_file)])
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and len(pids_file.read_text().split() if pids_file.exists() else []) < 2:
+            time.sleep(0.1)
+        workers = [int(p) for p in pids_file.read_text().split()]
+        assert len(workers) == 2
+    finally:
+        caller.kill()  # SIGKILL: no chance to shut its pool down
+        caller.wait()
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline and any(_alive(p) for p in workers):
+        time.sleep(0.1)
+    assert not any(_alive(p) for p in workers)  # they would sleep 300 s, then wait for tasks forever
+
+
 def test_jobs_are_checked():
     assert check_jobs(None) == default_jobs() >= 1
     assert check_jobs(3) == 3
