@@ -163,11 +163,13 @@ def quick_fit(model: Any, run: Any, mask: np.ndarray, max_evaluations: int) -> A
 
 def _qualnames() -> dict[tuple[str, int], str]:
     """(file, first line) -> qualified name of hilbench's model functions, to label profile rows."""
+    import hilbench.models.bases as bases
     import hilbench.models.components as comp
+    import hilbench.models.effect_components as effects
     import hilbench.models.model as mod
 
     names: dict[tuple[str, int], str] = {}
-    for module in (comp, mod):
+    for module in (comp, bases, effects, mod):
         for obj in vars(module).values():
             if inspect.isclass(obj) and obj.__module__ == module.__name__:
                 for attr in vars(obj).values():

@@ -4,7 +4,7 @@ The simulated plant, the model library, the diagnosis and the compensators speak
 effects by the same names. Each :class:`Effect` says, in one place:
 
 * ``plant_table``: the ``[plant.<table>]`` of a simulated rig that produces it;
-* ``component``: the model component (:mod:`hilbench.models.components`) that describes it, and
+* ``component``: the model component (:mod:`hilbench.models.effect_components`) that describes it, and
   ``forms``: the spec variants in which the diagnosis tries it (the data choose among them, by the
   rule ``form_choice``);
 * ``requires``: what the data must contain for the effect to be testable (names checked by

@@ -31,7 +31,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hilbench.cli.app import run
-from hilbench.models.components import BASES, EFFECTS
+from hilbench.models.bases import BASES
+from hilbench.models.effect_components import EFFECTS
 from hilbench.models.spec import as_option
 from tests.conftest import MINIMAL_RIG
 

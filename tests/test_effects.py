@@ -6,7 +6,8 @@ from hilbench import effects as E
 from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, SIGNATURES
 from hilbench.diagnosis.refit import effect_specs
 from hilbench.diagnosis.testability import REQUIREMENTS
-from hilbench.models.components import BASES, EFFECTS as MODEL_EFFECTS
+from hilbench.models.bases import BASES
+from hilbench.models.effect_components import EFFECTS as MODEL_EFFECTS
 from hilbench.models.model import Model, split_spec
 from hilbench.sim.schema import PLANT_SCHEMA
 

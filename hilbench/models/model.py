@@ -18,13 +18,8 @@ from scipy import signal as sps
 from hilbench import __version__
 from hilbench.errors import UserError
 from hilbench.models import kernels as MK
-from hilbench.models.components import (
-    AuxChannel,
-    Columns,
-    Component,
-    ShapeParam,
-    Signals,
-)
+from hilbench.models.components import Columns, Component, ShapeParam, Signals
+from hilbench.models.effect_components import AuxChannel
 
 MODEL_FORMAT = "hilbench-model"
 MODEL_FORMAT_VERSION = 1

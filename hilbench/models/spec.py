@@ -46,7 +46,8 @@ MAX_SPEC_LENGTH = 2000
 
 def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
     """``"pi(n=16)+creep"`` -> ``[("pi", {"n": 16}), ("creep", {})]`` (values not yet checked)."""
-    from hilbench.models.components import BASES, EFFECTS
+    from hilbench.models.bases import BASES
+    from hilbench.models.effect_components import EFFECTS
 
     if not isinstance(spec, str) or not spec.strip():
         raise SpecError("the model spec is empty", where="--model", hint=SPEC_HINT)
@@ -99,7 +100,8 @@ def split_spec(spec: str) -> list[tuple[str, dict[str, Any]]]:
 
 
 def available_names() -> str:
-    from hilbench.models.components import BASES, EFFECTS
+    from hilbench.models.bases import BASES
+    from hilbench.models.effect_components import EFFECTS
 
     return (f"bases: {', '.join(BASES)}; effects: {', '.join(EFFECTS)}; "
             "or the name of an auxiliary channel of the recording (e.g. temperature, load)")
@@ -140,7 +142,8 @@ def check_options(name: str, schema: dict[str, Any], options: dict[str, Any], sp
 
 def build_components(spec: str, channels: list[str] | None = None) -> tuple[Component, list[Component]]:
     """Base and effects of a spec, validated; aux-channel effects need the channel in ``channels``."""
-    from hilbench.models.components import BASES, EFFECT_ORDER, EFFECTS, AuxChannel
+    from hilbench.models.bases import BASES
+    from hilbench.models.effect_components import EFFECT_ORDER, EFFECTS, AuxChannel
 
     parts = split_spec(spec)
     base_name, base_options = parts[0]
@@ -192,7 +195,7 @@ def _opt(component: Component, key: str, default: Any = None) -> Any:
 def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]:
     """(regressor columns, searched shape parameters) of a spec, from its options alone.
 
-    Mirrors the ``columns()`` of :mod:`hilbench.models.components`: effects that modulate the
+    Mirrors the ``columns()`` of :mod:`hilbench.models.bases` and :mod:`hilbench.models.effect_components`: effects that modulate the
     hysteresis (saturation's output form, creep's output form, rate-dependence, aux channels) add a
     copy of every hysteresis column so far.
     """
@@ -222,7 +225,7 @@ def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]
             k = 3 + (hyst if _opt(e, "form") in ("output", "knee") else 0)
             cols, hyst, shape = cols + k, hyst + k, shape + (2 if _opt(e, "form") == "knee" else 1)
         elif kind == "creep" and _opt(e, "form") == "bank":
-            from hilbench.models.components import CREEP_BANK_MOST
+            from hilbench.models.effect_components import CREEP_BANK_MOST
 
             cols += CREEP_BANK_MOST  # a fixed bank: its time constants are not searched
         elif kind == "creep":

@@ -106,7 +106,7 @@ P_F_REF = 13
 P_DELAY_FRAC = 14
 P_DYN_B0 = 15  # b[0] (the whole filter when it is a pure gain)
 P_SAT_P = 16  # sharpness of the saturation knee (form=knee)
-P_GAIN_FLOOR = 17  # floor of the loop gains (components.GAIN_FLOOR)
+P_GAIN_FLOOR = 17  # floor of the loop gains (effect_components.GAIN_FLOOR)
 N_P = 18
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
@@ -391,7 +391,8 @@ class _Flat:
 def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     """Flatten a fitted model for :func:`model_step`; raises :class:`NotCompilable` for what it
     does not cover (the caller keeps the Python path for it)."""
-    from hilbench.models import components as C
+    from hilbench.models import bases as C
+    from hilbench.models.effect_components import GAIN_FLOOR
 
     if model.weights is None:
         raise NotCompilable("the model has no weights")
@@ -400,7 +401,7 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     I = f.I
     f.P[P_FS] = fs
     f.P[P_USCALE] = float(model.norm["u_scale"])
-    f.P[P_GAIN_FLOOR] = C.GAIN_FLOOR
+    f.P[P_GAIN_FLOOR] = GAIN_FLOOR
     base = model.base
     # -- base ---------------------------------------------------------------------------------------
     if isinstance(base, C.Linear):

@@ -769,7 +769,7 @@ class PID:
 
 def _pi_structure(model: Any) -> dict[str, Any] | None:
     """Equivalent play form of an operator base: sorted positive thresholds, weights, constants."""
-    from hilbench.models import components as C
+    from hilbench.models import bases as C
 
     base = model.base
     w = np.asarray(model.weights, float)
@@ -797,7 +797,7 @@ def _pi_structure(model: Any) -> dict[str, Any] | None:
 
 def _polynomial(model: Any, n_ops: int) -> np.ndarray:
     """Coefficients c_0..c_deg of the memoryless polynomial of mpi/pmpi and the asymmetry effect."""
-    from hilbench.models import components as C
+    from hilbench.models import bases as C
 
     w = np.asarray(model.weights, float)
     coef = np.zeros(9)

@@ -418,7 +418,7 @@ def test_weights_with_inequality_constraints_match_a_general_solver() -> None:
 def test_pmpi_invertible_keeps_eq16() -> None:
     """pmpi(invertible=yes) keeps 004 eq. 16 with its margin over the training input range, where the
     free fit of a loop with a steep polynomial part breaks it."""
-    from hilbench.models.components import EQ16_MARGIN
+    from hilbench.models.bases import EQ16_MARGIN
 
     u = 10.0 * np.sin(2 * np.pi * np.arange(4000) / 1000.0)
     v = u / 10.0

@@ -145,7 +145,7 @@ def test_the_fitted_log_creep_is_a_flat_spectrum_and_steps_like_it_simulates():
 
 
 def test_bank_time_constants():
-    from hilbench.models.components import creep_bank_time_constants
+    from hilbench.models.effect_components import creep_bank_time_constants
 
     taus = creep_bank_time_constants(60.0, 1000.0)
     assert math.isclose(taus[0], 0.003) and math.isclose(taus[-1], 60.0)

@@ -10,7 +10,8 @@ import pytest
 
 from hilbench.identify import fit_model
 from hilbench.models import Model, RunData, SpecError
-from hilbench.models.components import BASES, EFFECTS
+from hilbench.models.bases import BASES
+from hilbench.models.effect_components import EFFECTS
 
 FS = 1000.0
 
@@ -124,7 +125,7 @@ def test_discrete_dynamics_recover_a_resonance():
 
 
 def test_triangle_harmonic_weights_of_eq_16():
-    from hilbench.models.components import RateDependence
+    from hilbench.models.effect_components import RateDependence
 
     rd = RateDependence({"waveform": "triangle"})
     rd.constants.update({"order": 3, "waveform": "triangle", "harmonics": 9})

@@ -1,0 +1,605 @@
+"""Effects on top of a base: asymmetry, saturation, creep, rate-dependence, auxiliary channels,
+dynamics and delay, each a block of regressor columns (or a modulation of the base's) with shape
+parameters (:mod:`hilbench.models.components`). DESIGN.md's effect vocabulary names them;
+:data:`EFFECTS` maps a spec's effect names to them and :data:`EFFECT_ORDER` is the order they
+apply in, whatever the order in the spec.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from hilbench.errors import UserError
+from hilbench.models import kernels as MK
+from hilbench.models.components import Columns, Component, ShapeParam, Signals
+from hilbench.models.options import Option
+
+
+class Asymmetry(Component):
+    """Memoryless polynomial shaping v^2 ... v^order of the normalised input (002 cubic, 004 PMPI).
+
+    The default order 4 adds the quartic term a plant's polynomial often has (an even v^4 cannot
+    be mimicked by v^2 over a wide drive range)."""
+
+    name = "asymmetry"
+    summary = "memoryless polynomial v^2 ... v^order, order 4 by default (002 cubic, 004 PMPI): loops not centrally symmetric"
+    options_schema = {"order": Option("int", default=4, minimum=2, maximum=8, doc="highest power of the polynomial")}
+
+    def order(self) -> int:
+        """The highest power of the even/odd polynomial (option ``order``, 2 to 8)."""
+        order = int(self.options.get("order", 4))
+        if not 2 <= order <= 8:
+            raise UserError(f"asymmetry(order={order}): the order must be 2 to 8")
+        return order
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        powers = range(2, self.order() + 1)
+        # successive products instead of v**k: numpy's pow for k > 2 cost more than the rest of a
+        # refit's evaluation (the columns are rebuilt at every evaluation of a shape search)
+        mat = np.empty((s.v.size, len(powers)))
+        np.multiply(s.v, s.v, out=mat[:, 0])
+        for j in range(1, len(powers)):
+            np.multiply(mat[:, j - 1], s.v, out=mat[:, j])
+        return Columns.of(mat, [f"asym*v^{k}" for k in powers], hysteresis=True)
+
+
+def tanh_flattening(x: np.ndarray) -> np.ndarray:
+    """phi(x) = tanh(x) / x (1 at 0): the gain of s tanh(h / s) relative to h."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(np.abs(x) > 1e-8, np.tanh(x) / np.where(x == 0, 1.0, x), 1.0)
+
+
+def knee_flattening(x: np.ndarray, p: float) -> np.ndarray:
+    """phi(x) = (1 + |x|^p)^(-1/p): the gain of h / (1 + |h/s|^p)^(1/p) relative to h."""
+    return (1.0 + np.abs(x) ** p) ** (-1.0 / p)
+
+
+class Saturation(Component):
+    name = "saturation"
+    summary = "loop flattening at large drive: tanh(v/s) and the fractional terms sgn(v)|v|^(1/2), ^(1/3)"
+    options_schema = {"s": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0, unit="normalised input",
+                                  doc="knee, fixed instead of searched"),
+                      "p": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0,
+                                  doc="knee sharpness (form=knee), fixed instead of searched"),
+                      "form": Option("choice", default="output", choices=("output", "knee", "input"),
+                                     doc="output: the hysteresis output saturates (tanh); knee: with a knee of "
+                                     "adjustable sharpness; input: memoryless terms alone")}
+    #: form -> the flattening phi(x) of the hysteresis output (x = v / s); ``input``: none
+    FORMS = ("output", "knee", "input")
+
+    def prepare(self, s: Signals) -> None:
+        form = str(self.options.get("form", "output"))
+        if form not in self.FORMS:
+            raise UserError(f"saturation(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
+        if not self.params:
+            self.params = [ShapeParam("s", 0.5, 0.05, 3.0, "normalised input", log=True, doc="tanh knee")]
+            if form == "knee":
+                # sharpness of the knee h / (1 + |h/s|^p)^(1/p): p = 1 soft, p -> inf a hard clip
+                self.params.append(ShapeParam("p", 2.0, 0.7, 8.0, "", log=True, doc="knee sharpness"))
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        v = s.v
+        sq = np.sign(v) * np.sqrt(np.abs(v))
+        cb = np.sign(v) * np.abs(v) ** (1.0 / 3.0)
+        # non-negative weights: every column is compressive (concave for v > 0, convex below), so the
+        # effect can only flatten the response at large drive, never stiffen it (that would be an
+        # expansive polynomial: asymmetry); actuators here rise with their input (PI weights >= 0)
+        names = ["sat*tanh(v/s)", "sat*v^(1/2)", "sat*v^(1/3)"]
+        lower = [0.0, 0.0, 0.0]
+        form = str(self.options.get("form", "output"))
+        copies = form in ("output", "knee")
+        keeps = [(b, [j for j, name in enumerate(b.names) if name != "offset"])
+                 for b in previous if b.hysteresis] if copies else []
+        # one array for the whole block: the copies are written in place, not stacked afterwards
+        mat = np.empty((v.size, 3 + sum(len(keep) for _, keep in keeps)))
+        np.tanh(v / self.param("s"), out=mat[:, 0])
+        mat[:, 1] = sq
+        mat[:, 2] = cb
+        if copies:
+            # a saturating *output*: L tanh(h / L) = h phi(h / L), phi(x) = tanh(x) / x, with h the
+            # hysteresis output, about G v; so the hysteresis columns flatten by phi(v / s) at large
+            # drive. As copies times (phi - 1) with their own weights the model stays linear in them.
+            # The knee form flattens by phi(x) = (1 + |x|^p)^(-1/p), a knee of adjustable sharpness.
+            x = v / self.param("s")
+            phi = knee_flattening(x, self.param("p")) if form == "knee" else tanh_flattening(x)
+            c = 3
+            for block, keep in keeps:
+                np.multiply(block.matrix[:, keep], (phi - 1.0)[:, None], out=mat[:, c : c + len(keep)])
+                c += len(keep)
+                names += [f"{block.names[j]}*(phi(v/s)-1)" for j in keep]
+                # the copies of the linear term and of the operators (weights >= 0, the gain
+                # rises with the input) are >= 0 too: they only take away at large drive, i.e.
+                # flatten, never stiffen (an expansive shape is asymmetry's)
+                lower += [0.0 if block.names[j] == "p0*v" or block.names[j].startswith("w[")
+                          else float(block.lower[j]) for j in keep]
+        return Columns.of(mat, names, lower=lower, hysteresis=True)
+
+
+#: elements of creep's fixed bank at most (form=bank): its columns, for a size estimate from the spec
+CREEP_BANK_MOST = 16
+
+
+#: creep(form=log): the bank runs to this multiple of the record's length
+LOG_CREEP_BEYOND = 100.0
+
+
+def creep_bank_time_constants(duration_s: float, fs: float, per_decade: float = 3.0,
+                              most: int = CREEP_BANK_MOST) -> np.ndarray:
+    """The fixed Kelvin-Voigt bank of ``creep(form=bank)``: time constants (s) log-spaced from a few
+    samples (3 / fs) to the training record's length, ``per_decade`` of them per decade, at most
+    ``most`` (and at least 2). Fixed by the data's time span alone: nothing is searched."""
+    lo = 3.0 / fs
+    hi = max(float(duration_s), 10.0 * lo)
+    decades = math.log10(hi / lo)
+    n = int(min(most, max(2, math.ceil(per_decade * decades) + 1)))
+    return np.geomspace(lo, hi, n)
+
+
+class Creep(Component):
+    """Kelvin-Voigt creep: the drift part lp_tau(x) - x of first-order low-passes.
+
+    form = input (default): of the input alone, n elements with searched time constants.
+    form = output: of the input and of every hysteresis column too, so the creep follows the
+    hysteresis output h (lp(h) - h is linear in h's columns; the copies carry their own weights, as
+    the products of creep gains and operator weights). The output form fits a plant whose creep acts
+    after the hysteresis far better (0.052 -> 0.015 um on the suite's creep case) but its copies
+    overfit short or tail-heavy training data (aixACCT creep records: 0.098 -> 0.167 um; a 2 s creep:
+    0.024 -> 0.027 um), so it is not the default; the diagnosis chooses between the forms on an
+    inner split of the training rows.
+    form = bank: piezo creep spans decades (ms to hours, close to logarithmic in time), which two
+    fitted elements cannot follow. A fixed bank of elements log-spaced from 3 / fs to the training
+    record's length (:func:`creep_bank_time_constants`), nothing searched, weights >= 0: a
+    retardation spectrum sampled on a grid. A passive viscoelastic material's retardation spectrum
+    is non-negative (every Kelvin-Voigt compliance is > 0), so creep continues the strain in the
+    direction of the input change: with the drift columns lp(v) - v (-dv just after a step dv,
+    decaying to 0) that is a weight >= 0. The bound also keeps the fit of neighbouring, nearly
+    collinear elements well posed (no alternating-sign pairs); the weights stay exact (bounded
+    linear least squares). A logarithmic law gamma log10(1 + t / t0) is such a spectrum (flat per
+    decade between t0 and the record's length).
+    form = log: that logarithmic law itself, gamma sum_j dv_j log10(1 + (t - t_j) / t0): the bank's
+    elements weighted by the law's spectrum exp(-t0 / tau) (:meth:`log_spectrum`), one weight
+    (gamma) and one searched onset time t0. One weight cannot trade slow elements against the
+    base's gain the way the free bank can on a short record, but a spectrum that is not of this
+    shape (discrete elements) it follows only in part.
+    """
+
+    name = "creep"
+    summary = "slow drift after input changes: Kelvin-Voigt elements on the input and the hysteresis output"
+    FORMS = ("input", "output", "bank", "log")
+    options_schema = {"n": Option("int", default=2, minimum=1, maximum=12,
+                                  doc="Kelvin-Voigt elements (time constants searched; form=input, output)"),
+                      "form": Option("choice", default="input", choices=FORMS,
+                                     doc="input: creep of the input; output: of the hysteresis output too; "
+                                     "bank: a fixed log-spaced bank from 3/fs to the record's length, weights >= 0; "
+                                     "log: that bank with one weight (a logarithmic law)"),
+                      "per_decade": Option("number", default=3.0, minimum=0.5, maximum=6.0,
+                                           doc="elements per decade of time (form=bank, log; 16 at most)")}
+
+    def _form(self) -> str:
+        return str(self.options.get("form", "input"))
+
+    def prepare(self, s: Signals) -> None:
+        if self._form() not in self.FORMS:
+            raise UserError(f"creep(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
+        if self._form() in ("bank", "log"):
+            if "taus" not in self.constants:
+                duration = s.u.shape[0] / s.fs
+                per_decade = float(self.options.get("per_decade", 3.0))
+                if self._form() == "log":
+                    # the law keeps rising after the record: elements far slower than the record
+                    # act within it as ramps t / tau, which a truncated spectrum would miss (on a
+                    # log law, 0.146 um left against the free bank's 0.034); with one weight for
+                    # them all they cost no freedom
+                    taus = creep_bank_time_constants(LOG_CREEP_BEYOND * duration, s.fs, per_decade,
+                                                     most=2 * CREEP_BANK_MOST)
+                else:
+                    taus = creep_bank_time_constants(duration, s.fs, per_decade)
+                self.constants["taus"] = [float(t) for t in taus]
+            if self._form() == "log" and not self.params:
+                taus = self.constants["taus"]
+                record = s.u.shape[0] / s.fs
+                self.params = [ShapeParam("t0", float(np.sqrt(taus[0] * record) / 10.0), 1.0 / s.fs,
+                                          max(record / 10.0, 2.0 / s.fs), "s", log=True,
+                                          doc="the logarithmic law's onset time t0: log10(1 + t / t0)")]
+            return
+        if self.params:
+            return
+        n = int(self.options.get("n", 2))
+        duration = s.u.shape[0] / s.fs
+        lo, hi = 10.0 / s.fs, max(duration, 20.0 / s.fs)
+        starts = np.geomspace(max(lo, duration / 100), max(hi / 3, lo * 2), n)
+        self.params = [ShapeParam(f"tau_{k}", float(t), lo, hi, "s", log=True, doc="creep time constant")
+                       for k, t in enumerate(starts)]
+
+    def time_constants(self) -> np.ndarray:
+        """The elements' time constants, s: the fixed bank's, or the searched ones."""
+        if self._form() in ("bank", "log"):
+            return np.asarray(self.constants.get("taus", []), float)
+        return np.array([p.value for p in self.params], float)
+
+    def log_spectrum(self) -> np.ndarray:
+        """form=log: each bank element's share of the logarithmic law, exp(-t0 / tau) per element.
+
+        log(1 + t / t0) = int_0^inf (1 - exp(-t s)) exp(-t0 s) / s ds, so with tau = 1 / s the law's
+        retardation spectrum per d ln(tau) is exp(-t0 / tau): flat above t0, vanishing below it."""
+        return np.exp(-self.param("t0") / self.time_constants())
+
+    def new_state(self) -> dict[str, Any]:
+        return {"lp": np.zeros((self.time_constants().size, 1)), "started": False, "lp_h": None}
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        if not state["started"]:
+            state["lp"][:, 0] = s.v[0]
+            state["started"] = True
+        taus = self.time_constants()
+        v = np.ascontiguousarray(s.v)
+        cols = []
+        for k, tau in enumerate(taus):
+            out = np.empty_like(v)
+            MK.lowpass_block(v, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp"][k], out)
+            cols.append(out - v)  # the drift part: zero in steady state
+        names = [f"creep[tau={t:.3g}s]" for t in taus]
+        if self._form() == "bank":  # creep in the direction of the input change (see the class doc)
+            return Columns.of(np.column_stack(cols), names, lower=0.0)
+        if self._form() == "log":  # the law's spectrum over the bank: one weight, the law's gamma
+            return Columns.of((np.column_stack(cols) @ self.log_spectrum())[:, None], ["creep[log]"], lower=0.0)
+        if self._form() == "output":
+            hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
+            if hyst:
+                x = np.ascontiguousarray(np.hstack([b.matrix[:, keep] for b, keep in hyst]))
+                if state["lp_h"] is None:  # start in steady state, as the input's low-pass does
+                    state["lp_h"] = np.repeat(x[:1], taus.size, axis=0)
+                # the drift parts go straight into the block (no stacking of copies afterwards)
+                p = x.shape[1]
+                mat = np.empty((v.size, len(cols) + taus.size * p))
+                for k, col in enumerate(cols):
+                    mat[:, k] = col
+                out = np.empty_like(x)
+                for k, tau in enumerate(taus):
+                    MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
+                    c = len(cols) + k * p
+                    np.subtract(out, x, out=mat[:, c : c + p])
+                    names += [f"{b.names[j]}*creep[tau={tau:.3g}s]" for b, keep in hyst for j in keep]
+                return Columns.of(mat, names)
+        return Columns.of(np.column_stack(cols), names)
+
+
+#: A gain on the loop (rate-dependence's k, an aux channel's) is held at or above this fraction of
+#: the rest gain: an actuator's loop does not vanish or invert at any rate, temperature or load (a
+#: floor, not a fit: the search keeps the gain positive on the training rows)
+GAIN_FLOOR = 0.05
+
+#: A change of this fraction of the input span within one sample is a step (as the diagnosis counts
+#: steps): the rate terms hold the input rate at that slope.
+STEP_SPAN_FRACTION = 0.05
+
+
+class RateDependence(Component):
+    """003: m-th power velocity damping, and a hysteresis gain that changes with the input rate.
+
+    The rate-independent hysteresis y_RI (every hysteresis column but the offset) is scaled by one
+    gain and a damping term is added, 003 eq. 9: ``y = k * y_RI + c * y_MD``.
+
+    form = damping: k = 1 + g |v'|/Q (g searched: the relative gain change per reference rate Q, the
+    training's rms rate; 003 refs. 16-17 weight the loop linearly with |v'|) and
+    y_MD = sgn(v') |v'/Q|^m (eq. 6), one column.
+    form = frequency: k(f) = 1 + sum_j k_j f^j (j = 1..order, the k_j searched) and c(f) =
+    sum_j c_j f^j (j = 0..order-1, weights) with y_MD = sgn(v') |v' / (2 pi f a)|^m, f and a the
+    drive frequency and amplitude estimated from the input's turning points (eq. 8-13).
+    form = auto: frequency when the training data hold several drive frequencies, else damping.
+    waveform = triangle applies the harmonic weights of eq. 14-16 to the frequency polynomials.
+
+    The gain is one factor on the whole loop, not a copy of every hysteresis column with its own
+    weight: the copies made the fit ill-posed (weights of +-1e4 cancelling each other, a training
+    fit at the noise and a validation error ten times the base's; decision 0018).
+    """
+
+    name = "rate-dependence"
+    summary = "loop gain and width change with input rate: velocity damping, frequency polynomials (003)"
+    options_schema = {"form": Option("choice", default="auto", choices=("auto", "damping", "frequency"),
+                                     doc="damping (003 eq. 6), frequency (k(f), c(f), eq. 8-13) or auto"),
+                      "order": Option("int", default=3, minimum=1, maximum=8, doc="order of the frequency polynomials"),
+                      "waveform": Option("choice", default="sine", choices=("sine", "triangle"),
+                                         doc="triangle applies the harmonic weights of 003 eq. 14-16"),
+                      "harmonics": Option("int", default=9, minimum=1, maximum=999, doc="harmonics of a triangle"),
+                      "m": Option("number", minimum=0.0, exclusive_minimum=True, maximum=10.0,
+                                  doc="damping exponent, fixed instead of searched")}
+
+
+    def prepare(self, s: Signals) -> None:
+        if "form" not in self.constants:
+            form = str(self.options.get("form", "auto"))
+            f_est, _ = s.turning_point_frequency()
+            if form == "auto":
+                levels = f_est[f_est > 0]
+                spread = np.percentile(levels, 95) / max(np.percentile(levels, 5), 1e-12) if levels.size else 1.0
+                form = "frequency" if spread > 1.5 else "damping"
+            self.constants["form"] = form
+            self.constants["order"] = int(self.options.get("order", 3))
+            rate = np.abs(s.vdot)
+            self.constants["rate_ref"] = float(np.sqrt(np.mean(rate**2))) or 1.0
+            self.constants["f_ref"] = float(np.max(f_est)) or 1.0
+            # Beyond the training rates the damping extrapolates as its power law (viscous damping ~
+            # velocity, 003 eq. 6): held at the largest training rate, it would remove none of the
+            # error it is there to remove at higher rates (issue 11, 3b: trained at 5 + 10 Hz,
+            # validated at 50 Hz, 0.53 um rms held vs 0.083 um extrapolated). The guard is physical
+            # instead: a change of STEP_SPAN_FRACTION of the input span within one sample is a step,
+            # which no actuator follows (its amplifier slews), so rates are held at that slope.
+            # The frequency form keeps the largest training rate: its k(f), c(f) are polynomials,
+            # for rates inside the training span, and its damping is normalised by f a.
+            span = float(np.ptp(s.v)) if s.v.size else 0.0
+            guard = STEP_SPAN_FRACTION * span * s.fs if form == "damping" else float(np.max(np.abs(s.vdot)))
+            self.constants["vdot_max"] = guard or 1.0
+            self.constants["waveform"] = str(self.options.get("waveform", "sine"))
+            self.constants["harmonics"] = int(self.options.get("harmonics", 9))
+        if not self.params:
+            self.params = [ShapeParam("m", 1.0, 0.2, 3.0, doc="damping exponent (003 eq. 6)")]
+            if self.constants["form"] == "damping":
+                # the gain may fall with rate, but not below GAIN_FLOOR at the training's
+                # fastest (unclipped) rate, and rises at most 2x per reference rate
+                r_max = float(np.max(np.abs(self.limited(s)[0]))) / float(self.constants["rate_ref"]) if s.v.size else 1.0
+                lower = -(1.0 - GAIN_FLOOR) / max(r_max, 1.0)
+                self.params.append(ShapeParam("g", 0.0, lower, 2.0, "per reference rate",
+                                              doc="relative hysteresis gain change per reference rate Q"))
+            else:
+                self.params += [ShapeParam(f"k_{j}", 0.0, -2.0, 2.0, doc=f"gain polynomial k(f), coefficient of f^{j}")
+                                for j in range(1, int(self.constants["order"]) + 1)]
+
+    def load_dict(self, data: dict[str, Any]) -> None:
+        super().load_dict(data)
+        names = {p.name for p in self.params}
+        if self.constants.get("form") in ("damping", "frequency") and not names & {"g", "k_1"}:
+            raise UserError("rate-dependence was saved in an older layout (a weighted copy of every "
+                            "hysteresis column), which one gain on the loop replaced: fit the model again",
+                            hint="hilbench fit DATA.h5 --model SPEC -o FIT.json")
+
+    def new_state(self) -> dict[str, Any]:
+        return {"tp": np.zeros(MK.N_TP)}
+
+    def harmonic_moments(self) -> np.ndarray:
+        """sum_i lambda_i i^j for j = 0..order (003 eq. 16); ones for a sine."""
+        order = int(self.constants["order"])
+        if self.constants["waveform"] != "triangle":
+            return np.ones(order + 1)
+        i = np.arange(1, int(self.constants["harmonics"]) + 1, dtype=float)
+        amp = np.abs(8.0 / (np.pi**2 * i**2) * np.sin(np.pi * i / 2))
+        lam = amp / amp.sum()
+        return np.array([np.sum(lam * i**j) for j in range(order + 1)])
+
+    def limited(self, s: Signals, f: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The input rate (1/s), held below the step guard (``vdot_max``, see :meth:`prepare`), and the
+        normalised drive frequency, held within the training's range (a polynomial in f has no
+        physical extrapolation: the frequency form is for rates inside the training span)."""
+        vmax = float(self.constants.get("vdot_max", np.inf))
+        vdot = np.clip(s.vdot, -vmax, vmax)
+        fn = None if f is None else np.minimum(f / float(self.constants["f_ref"]), 1.0)
+        return vdot, fn
+
+    def gain_coefficients(self) -> np.ndarray:
+        """damping: [g]; frequency: [k_1 .. k_order]."""
+        if self.constants["form"] == "damping":
+            return np.array([self.param("g")])
+        return np.array([self.param(f"k_{j}") for j in range(1, int(self.constants["order"]) + 1)])
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        m = self.param("m")
+        sgn = np.sign(s.vdot)
+        if self.constants["form"] == "damping":
+            rate = np.abs(self.limited(s)[0]) / float(self.constants["rate_ref"])
+            gain = 1.0 + self.param("g") * rate
+            _scale_hysteresis(previous, np.maximum(gain, GAIN_FLOOR))
+            return Columns.of((sgn * rate**m)[:, None], ["c*sgn(v')|v'/Q|^m"])
+        f = np.empty_like(s.v)
+        a = np.empty_like(s.v)
+        MK.turning_point_frequency(np.ascontiguousarray(s.v), s.fs, state["tp"], f, a)
+        vdot, fn = self.limited(s, f)
+        q = 2.0 * np.pi * f * a
+        with np.errstate(divide="ignore", invalid="ignore"):
+            md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
+        moments = self.harmonic_moments()
+        order = int(self.constants["order"])
+        gain = np.ones_like(s.v)
+        power = np.ones_like(s.v)
+        for j, kj in enumerate(self.gain_coefficients(), start=1):
+            power = power * fn
+            gain += kj * moments[j] * power
+        _scale_hysteresis(previous, np.maximum(gain, GAIN_FLOOR))
+        mat = np.empty((s.v.size, order))
+        power = np.ones_like(s.v)
+        for j in range(order):
+            np.multiply(md, power * moments[j], out=mat[:, j])
+            power = power * fn
+        return Columns.of(mat, [f"c{j}*f^{j}*y_MD" for j in range(order)])
+
+
+def _scale_hysteresis(blocks: list[Columns], gain: np.ndarray) -> None:
+    """Scale every hysteresis column but the offset by ``gain`` (one value per row), in place: the
+    rate-independent loop y_RI times k (003 eq. 9). The blocks are this evaluation's own arrays."""
+    for block in blocks:
+        if not block.hysteresis:
+            continue
+        keep = [j for j, name in enumerate(block.names) if name != "offset"]
+        if len(keep) == block.matrix.shape[1]:
+            block.matrix *= gain[:, None]
+        else:
+            block.matrix[:, keep] *= gain[:, None]
+
+
+class AuxChannel(Component):
+    """Dependence on a recorded auxiliary channel a (temperature, load, ...): an offset proportional
+    to a - a_ref (thermal strain, load compliance) and a gain on the whole loop, ``1 + g (a - a_ref) /
+    a_std`` (the piezoelectric coefficient's change with temperature, the stiffening under load), as
+    rate-dependence's gain (decision 0018): one shape parameter g, not a weighted copy of every
+    hysteresis column (decision 0019)."""
+
+    role = "effect"
+    summary = "dependence on a recorded channel: offset and gain proportional to its change"
+    #: the gain's change per standard deviation of the channel in training, at most (either sign)
+    MAX_GAIN_PER_STD = 0.5
+
+    def __init__(self, channel: str, options: dict[str, Any] | None = None):
+        super().__init__(options)
+        self.channel = channel
+
+    @property
+    def label(self) -> str:
+        return self.channel
+
+    def prepare(self, s: Signals) -> None:
+        if "reference" not in self.constants:
+            a = s.aux[self.channel]
+            self.constants["reference"] = float(np.nanmean(a))
+            self.constants["scale"] = float(np.nanstd(a)) or 1.0
+        if not self.params:
+            self.params = [ShapeParam("g", 0.0, -self.MAX_GAIN_PER_STD, self.MAX_GAIN_PER_STD, "per channel std",
+                                      doc=f"relative hysteresis gain change per standard deviation of {self.channel}")]
+
+    def load_dict(self, data: dict[str, Any]) -> None:
+        super().load_dict(data)
+        if not any(p.name == "g" for p in self.params):
+            raise UserError(f"the {self.channel} channel's effect was saved in an older layout (a weighted copy of "
+                            "every hysteresis column), which one gain on the loop replaced: fit the model again",
+                            hint="hilbench fit DATA.h5 --model SPEC -o FIT.json")
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+        da = (s.aux[self.channel] - self.constants["reference"]) / self.constants["scale"]
+        _scale_hysteresis(previous, np.maximum(1.0 + self.param("g") * da, GAIN_FLOOR))
+        return Columns.of(np.ascontiguousarray(da)[:, None], [f"{self.channel}:offset"])
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**super().to_dict(), "name": self.channel, "channel": self.channel}
+
+
+class Dynamics(Component):
+    """Linear dynamics after the static part (002 eq. 7, 000 eq. 15), unit static gain.
+
+    kind second-order (default): K wn^2 / (s^2 + 2 zeta wn s + wn^2) with K = 1, zeta and the natural
+    frequency searched; kind first-order: one pole; both discretised by first-order hold. kind
+    discrete: a discrete transfer function B(z)/A(z) as 000 eq. 15, with ``pairs`` pairs of complex
+    poles (radius < 1, so always stable) and ``zeros`` numerator coefficients, scaled to unit gain.
+    """
+
+    name = "dynamics"
+    summary = "linear dynamics after the hysteresis: second-order plant (002), first-order lag, or discrete TF (000)"
+    options_schema = {"kind": Option("choice", default="second-order", choices=("second-order", "first-order", "discrete"),
+                                     doc="second-order plant (002), first-order lag, discrete TF (000)"),
+                      "natural_frequency_hz": Option("number", minimum=0.0, exclusive_minimum=True, unit="Hz",
+                                                     doc="natural frequency, fixed instead of searched"),
+                      "zeta": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0,
+                                     doc="damping ratio, fixed instead of searched"),
+                      "corner_hz": Option("number", minimum=0.0, exclusive_minimum=True, unit="Hz",
+                                          doc="first-order corner frequency, fixed instead of searched"),
+                      "pairs": Option("int", default=2, minimum=1, maximum=8, doc="pairs of complex poles (discrete)"),
+                      "zeros": Option("int", default=2, minimum=0, maximum=8, doc="numerator coefficients (discrete)")}
+
+    def prepare(self, s: Signals) -> None:
+        if self.params:
+            return
+        kind = str(self.options.get("kind", "second-order"))
+        self.constants["kind"] = kind
+        nyq = s.fs / 2
+        # Up to ten times the Nyquist frequency, where the first-order-hold filter is the identity
+        # within a few per cent: adding dynamics to a model can always fall back to none.
+        if kind == "first-order":
+            self.params = [ShapeParam("corner_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True)]
+        elif kind == "discrete":
+            pairs = int(self.options.get("pairs", 2))
+            zeros = int(self.options.get("zeros", 2))
+            self.params = []
+            for k in range(pairs):
+                self.params += [ShapeParam(f"radius_{k}", 0.9, 0.0, 0.9995, doc="pole radius"),
+                                ShapeParam(f"angle_{k}", (k + 1) * 0.3, 0.0, math.pi, "rad/sample")]
+            self.params += [ShapeParam(f"zero_coef_{j}", 0.0, -2.0, 2.0) for j in range(1, zeros + 1)]
+        else:
+            self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True),
+                           ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
+
+    def _searched(self, name: str) -> bool:
+        return any(p.name == name and p.upper > p.lower for p in self.params)
+
+    def neutral_shape(self) -> dict[str, float] | None:
+        """second-order: the natural frequency at its upper bound, ten times Nyquist, where the
+        filter passes the signal within a few per cent."""
+        if self.constants.get("kind") != "second-order" or not self._searched("natural_frequency_hz"):
+            return None
+        return {"natural_frequency_hz": next(p.upper for p in self.params if p.name == "natural_frequency_hz")}
+
+    def starts_from_residual(self, stretches: list[np.ndarray], fs: float) -> list[dict[str, float]]:
+        """second-order: a start at each of the residual spectrum's most prominent peaks (a
+        resonance's ringing, :mod:`hilbench.identify.resonance`), light to moderate damping."""
+        from hilbench.identify.resonance import RESONANCE_PEAKS, START_DAMPING, ringing_frequencies
+
+        if self.neutral_shape() is None:
+            return []
+        fn = next(p for p in self.params if p.name == "natural_frequency_hz")
+        zeta = next(p for p in self.params if p.name == "zeta")
+        damping = sorted({min(max(z, zeta.lower), zeta.upper) for z in START_DAMPING}) if self._searched("zeta") \
+            else [zeta.value]
+        starts = []
+        for f_peak in ringing_frequencies(stretches, fs, RESONANCE_PEAKS):
+            for z in damping:
+                f_n = f_peak / math.sqrt(1.0 - z * z) if z < 1.0 else f_peak  # the peak is the damped frequency
+                if fn.lower < f_n < fn.upper:
+                    starts.append({"natural_frequency_hz": f_n, "zeta": z})
+        return starts
+
+    def coefficients(self, fs: float) -> tuple[np.ndarray, np.ndarray]:
+        from hilbench.sim.dynamics import discretize_dynamics
+
+        if self.constants["kind"] == "discrete":
+            a = np.ones(1)
+            b = np.ones(1)
+            for p in self.params:
+                if p.name.startswith("radius_"):
+                    k = p.name.split("_")[1]
+                    rho, theta = p.value, self.param(f"angle_{k}")
+                    a = np.convolve(a, [1.0, -2.0 * rho * math.cos(theta), rho * rho])
+                elif p.name.startswith("zero_coef_"):
+                    b = np.append(b, p.value)
+            gain = b.sum()
+            b = b * (a.sum() / gain) if abs(gain) > 1e-9 else b * 0.0  # unit static gain
+            n = max(a.size, b.size)
+            return np.pad(b, (0, n - b.size)), np.pad(a, (0, n - a.size))
+        if self.constants["kind"] == "first-order":
+            wc = 2 * math.pi * self.param("corner_hz")
+            table = {"kind": "transfer-function", "num": [wc], "den": [1.0, wc]}
+        else:
+            table = {"kind": "second-order", "gain": 1.0, "zeta": self.param("zeta"),
+                     "natural_frequency_hz": self.param("natural_frequency_hz")}
+        # First-order hold: the poles are those of the zero-order hold (z = exp(s T)), so natural
+        # frequency and damping are the plant's, but no sample of delay is built in (the delay
+        # effect models delay).
+        return discretize_dynamics(table, fs, method="foh")
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
+        return None
+
+
+class Delay(Component):
+    """Pure time delay of amplifier, sensor or DAQ: the static part's output is delayed by a
+    fractional number of samples (linear interpolation), before the dynamics."""
+
+    name = "delay"
+    summary = "pure time delay of amplifier, sensor or DAQ (fractional samples)"
+    options_schema = {"max_s": Option("number", minimum=0.0, exclusive_minimum=True, maximum=60.0, unit="s",
+                                      doc="largest delay searched"),
+                      "seconds": Option("number", minimum=0.0, maximum=60.0, unit="s",
+                                        doc="the delay, fixed instead of searched (>= 0: a delay cannot lead)")}
+
+    def prepare(self, s: Signals) -> None:
+        if not self.params:
+            max_s = float(self.options.get("max_s", 50.0 / s.fs))
+            self.params = [ShapeParam("seconds", 1.0 / s.fs, 0.0, max_s, "s")]
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
+        return None
+
+
+EFFECTS: dict[str, type[Component]] = {
+    cls.name: cls for cls in (Asymmetry, Saturation, RateDependence, Dynamics, Creep, Delay)
+}
+#: the order effects are applied in, whatever the order in the spec
+EFFECT_ORDER = ("delay", "asymmetry", "saturation", "creep", "rate-dependence", "<aux>", "dynamics")
