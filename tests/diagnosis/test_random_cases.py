@@ -71,6 +71,11 @@ CASES = [
     # refit started from them (one local search) explained training (88 %) but not validation (5 %);
     # with a second search from the cold scan's best point it validates 60 % lower (decision 0027)
     pytest.param(140, "temperature", "ramp", id="140-temperature-ramp-pmpi"),
+    # a temperature cycle under a PMPI base: the refit's searches from the warm point and the cold
+    # scan's best point stopped in a poor optimum (training 0.0085 um, validation 0.039 um, block
+    # p = 0.021) and pairs with rate-dependence or saturation ranked first; the cold fit's second
+    # start reaches 0.0074 / 0.0103 um and a warm refit now runs it too (decision 0029)
+    pytest.param(59, "temperature", "cycling", id="59-temperature-cycling-pmpi"),
     # a warm-up ramp in each run (train and test runs on their own trajectories): the channel model
     # buys 10 % on validation and training and validation disagree
     pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1",
