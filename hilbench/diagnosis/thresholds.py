@@ -77,6 +77,11 @@ SIGNATURE_MARGIN = 0.2
 #: block test cannot separate (a saturation explaining 39 % against an even term's 31 % is a
 #: difference the few blocks miss, not an equality).
 PARSIMONY_MARGIN = 0.05
+#: ... and only when the candidate with fewer parameters fits the training rows nearly as well: a
+#: leader whose training rmse is below the simpler one's by more than this factor did not match it
+#: by flexibility (a parameter or two more buy percents, not multiples; a resonance near the drive
+#: trains at 0.22 um where a delay stops at 1.46, seed 181), as the wrong-base check asks multiples.
+PARSIMONY_TRAINING_RATIO = 2.0
 
 #: An auxiliary channel is tried when its smoothed range exceeds this many noise stds: pure noise
 #: gives well under 1, a 1.5 degC drift under 0.15 degC of noise gives 10.

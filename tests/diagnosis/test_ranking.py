@@ -15,12 +15,13 @@ from hilbench.diagnosis.verdict import Candidate, rank
 N = 4000
 
 
-def _candidate(effect: str, gain: float, n_weights: int, errors: np.ndarray) -> Candidate:
-    """A significant candidate whose refit has ``n_weights`` weights and these validation errors."""
+def _candidate(effect: str, gain: float, n_weights: int, errors: np.ndarray, train_rmse: float = 1.0) -> Candidate:
+    """A significant candidate whose refit has ``n_weights`` weights, these validation errors and
+    this training rmse."""
     model = SimpleNamespace(weights=np.zeros(n_weights), shape_params=lambda: [])
     run = SimpleNamespace(key="test", simulated=errors.copy(), data=SimpleNamespace(output=np.zeros(N)),
                           validation=np.ones(N, dtype=bool))
-    fitted = SimpleNamespace(model=model, runs=[run])
+    fitted = SimpleNamespace(model=model, runs=[run], metrics={"train": {"rmse": train_rmse}})
     return Candidate(effect=effect, spec=f"pi + {effect}", significant=True, expected_gain=gain,
                      explanation=f"{effect} helps", evidence={}, fitted=fitted)  # type: ignore[arg-type]
 
@@ -36,6 +37,24 @@ def test_equal_errors_go_to_the_candidate_with_fewer_parameters():
     ev = lean.evidence["ranked_by_parsimony"]
     assert ev["over"] == "saturation" and ev["free_parameters"] == {"saturation": 12, "asymmetry": 9}
     assert "fewer parameters (9 against 12)" in lean.explanation
+
+
+def test_parsimony_does_not_pass_over_a_leader_that_trains_multiples_better():
+    """Validation errors equal in law, but the richer leader fits the training rows 6.5x better (a
+    resonance against a delay, randomized case 181): flexibility does not buy multiples, the gain
+    order stands; at 1.5x better in training parsimony still decides."""
+    rng = np.random.default_rng(1)
+    e, e_lean = rng.normal(0.0, 1.0, N), rng.normal(0.0, 1.0, N)
+    rich = _candidate("dynamics", 0.80, 12, e, train_rmse=0.22)
+    lean = _candidate("delay", 0.79, 9, e_lean, train_rmse=1.46)
+    cands = [lean, rich]
+    rank(cands)
+    assert cands[0] is rich and "ranked_by_parsimony" not in lean.evidence
+    rich = _candidate("dynamics", 0.80, 12, e, train_rmse=1.0)
+    lean = _candidate("delay", 0.79, 9, e_lean, train_rmse=1.5)
+    cands = [rich, lean]
+    rank(cands)
+    assert cands[0] is lean and lean.evidence["ranked_by_parsimony"]["over"] == "dynamics"
 
 
 def test_a_difference_the_blocks_miss_is_not_a_tie_for_parsimony():
