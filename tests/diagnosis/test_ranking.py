@@ -141,3 +141,22 @@ def test_an_added_effects_step_records_the_base_refitted_to_a_better_optimum():
     only_start = [dict(steps[0])]
     _keep_polished(only_start, start, SimpleNamespace(result=polished))
     assert only_start[0]["validation"]["rmse"] == 3.0
+
+
+def test_a_pair_ranks_behind_its_member_that_is_significant_alone():
+    """asymmetry alone is significant (42 %); the pair with a partner that is not significant alone
+    gains more (53 %) but ranks behind asymmetry: the member is the finding, the partner is judged in
+    the next round (randomized case 89). A pair whose members are not significant alone keeps its rank."""
+    rng = np.random.default_rng(4)
+    asym = _candidate("asymmetry", 0.42, 9, rng.normal(0.0, 1.0, N))
+    pair = _candidate("asymmetry+saturation", 0.53, 12, rng.normal(0.0, 0.5, N))
+    pair.evidence["pair"] = ["asymmetry", "saturation"]
+    sat = _candidate("saturation", 0.03, 12, rng.normal(0.0, 1.0, N))
+    sat.significant = False
+    cands = [pair, sat, asym]
+    rank(cands)
+    assert [c.effect for c in cands] == ["asymmetry", "asymmetry+saturation", "saturation"]
+    asym.significant = False
+    cands = [sat, asym, pair]
+    rank(cands)
+    assert cands[0] is pair
