@@ -22,6 +22,7 @@ is fitted as written, with no choice of form.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -104,20 +105,31 @@ def inner_rmse(result: FitResult, held_back: list[np.ndarray]) -> float:
     return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
 
 
-def choose_by_inner_split(paths: Any, specs: list[str], train_fraction: float, start_from: Any = None) -> str:
+def choose_by_inner_split(paths: Any, specs: list[str], kw: dict[str, Any], start_from: Any = None) -> str:
     """The first spec, unless a richer one (later in ``specs``) predicts held-back training rows
-    better by RICHER_FORM_MARGIN. The inner fits train on the first INNER_SPLIT of the training
-    fraction and are scored on the user's training rows they did not see (for a run split in
-    interleaved blocks, :mod:`hilbench.identify.sweep`, the blocks between the two splits)."""
-    inner = T.INNER_SPLIT * train_fraction
-    if not 0.0 < inner < train_fraction or len(specs) == 1:
+    better by RICHER_FORM_MARGIN. The inner fits train on the first INNER_SPLIT of the user's
+    training rows and are scored on the training rows they did not see: with a fraction split, the
+    first INNER_SPLIT of the training fraction fits (for a run split in interleaved blocks,
+    :mod:`hilbench.identify.sweep`, the blocks between the two splits are held back); with runs in
+    roles (``train`` / ``test``), the first INNER_SPLIT of each training run's rows fits and the rest
+    of it is held back. The user's validation rows stay untouched either way."""
+    if len(specs) == 1:
         return specs[0]
     dataset = as_dataset(paths)
     user = dataset.fit_runs()
-    assign_roles(user, None, None, train_fraction, dataset.keep)
+    train_fraction = float(kw.get("train_fraction", 0.7))
+    roles = bool(kw.get("train") or kw.get("test"))
+    assign_roles(user, kw.get("train"), kw.get("test"), train_fraction, dataset.keep)
+    if roles:
+        # whole runs train: the inner fit sees only the training runs' rows, split by time in each
+        inner_data, inner = replace(dataset, keep=[u.train.copy() for u in user]), T.INNER_SPLIT
+    else:
+        inner_data, inner = dataset, T.INNER_SPLIT * train_fraction
+        if not 0.0 < inner < train_fraction:
+            return specs[0]
     scores = []
     for s in specs:
-        result = fit(dataset, s, train_fraction=inner, start_from=start_from)
+        result = fit(inner_data, s, train_fraction=inner, start_from=start_from)
         held_back = [r.validation & u.train for r, u in zip(result.runs, user)]
         scores.append(inner_rmse(result, held_back))
     best = min(range(1, len(specs)), key=lambda k: scores[k])
@@ -136,9 +148,7 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
         return fit(paths, spec, **kw)
     specs = effect_specs(base.spec, effect)
     if E.effect(effect).form_choice == "inner-split":
-        if kw.get("train") or kw.get("test"):
-            return fit(paths, specs[0], **kw)  # whole runs have roles: no training rows to hold back
-        chosen = choose_by_inner_split(paths, specs, float(kw.get("train_fraction", 0.7)), base.model)
+        chosen = choose_by_inner_split(paths, specs, kw, base.model)
         return fit(paths, chosen, **kw)
     best: FitResult | None = None
     for spec in specs:
