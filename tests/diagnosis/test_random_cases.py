@@ -76,6 +76,11 @@ CASES = [
     # p = 0.021) and pairs with rate-dependence or saturation ranked first; the cold fit's second
     # start reaches 0.0074 / 0.0103 um and a warm refit now runs it too (decision 0029)
     pytest.param(59, "temperature", "cycling", id="59-temperature-cycling-pmpi"),
+    # a logarithmic creep under a Duhem base, runs in roles: the creep forms fell back to the fixed bank
+    # (no training rows to hold back), which trained 30 % better and validated 57 % worse; an inner split
+    # of the training run picks creep after the hysteresis (training 0.097 -> 0.017 um, validation
+    # 0.110 -> 0.079 um), whose validation gain agrees in explained mean square (decision 0031)
+    pytest.param(26, "creep", "logarithmic", id="26-creep-logarithmic-duhem"),
     # a warm-up ramp in each run (train and test runs on their own trajectories): the channel model
     # buys 10 % on validation and training and validation disagree
     pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1",
@@ -124,3 +129,28 @@ def test_clean_case_flags_nothing(seed, folder):
     paths, kw = DC.write_case(case, folder)
     d = diagnose(paths, case.spec, **kw)
     assert not any(c.significant for c in d.effects), [(c.effect, c.expected_gain) for c in d.effects if c.significant]
+
+
+#: two hidden effects: the first significant candidate must name hidden effects only
+TWO_EFFECT_CASES = [
+    # a resonance near the drive and a temperature ramp in the test run: dynamics explains 95 % of
+    # training's rmse and 30 % of validation's, where the ramp's error stays; in mean square it removes
+    # half as much there as in training, so the gains agree (decision 0030); delay, one parameter
+    # fewer, validates within 5 % but trains 6.5x worse and does not take the lead by parsimony
+    pytest.param(181, ("dynamics", "temperature"), id="181-dynamics-near-drive-and-temperature-pi1"),
+    # an even v^6 term and a sensor delay: asymmetry alone is significant (42 %), the pair with a
+    # saturation partner gained more (53 %) and ranked first; a pair now ranks behind its member that
+    # is significant alone (decision 0031)
+    pytest.param(89, ("delay", "asymmetry"), id="89-delay-and-asymmetry-even6-pi"),
+]
+
+
+@pytest.mark.parametrize(("seed", "hidden"), TWO_EFFECT_CASES)
+def test_two_hidden_effects_one_ranked_first_and_significant(seed, hidden, folder):
+    case = DC.draw_case(seed)
+    assert tuple(case.hidden) == hidden
+    paths, kw = DC.write_case(case, folder)
+    d = diagnose(paths, case.spec, **kw)
+    table = [(c.effect, round(c.expected_gain, 3), c.significant) for c in d.effects]
+    assert d.effects and d.effects[0].significant, table
+    assert all(part in hidden for part in d.effects[0].effect.split("+")), table
