@@ -69,8 +69,8 @@ def failed_text(candidate: dict[str, Any]) -> str:
 
 
 def _measured(value: Any) -> str:
-    if isinstance(value, dict):
-        return "/".join(_measured(v) for v in value.values())
+    if isinstance(value, dict):  # several figures: each with its name (training_gain=0.42, ...)
+        return ", ".join(f"{k}={_measured(v)}" for k, v in value.items())
     return f"{value:.3g}" if isinstance(value, (int, float)) else str(value)
 
 

@@ -44,3 +44,13 @@ def test_the_reason_names_the_direction_and_the_figures(train, validation, words
     assert words in reason["text"]
     assert reason["measured"]["validation_explained_ms"] == pytest.approx(explained_power(*validation))
     assert "explained mean square" in reason["required"]
+
+
+def test_the_text_output_names_each_figure_of_the_check():
+    """The text summary's "also failed" part names every figure of a check with several (not a row
+    of numbers joined by slashes)."""
+    from hilbench.cli.summaries import _measured
+
+    ev = {"train_rmse": [1.0, 0.3], "validation_rmse": [1.0, 0.9], "checks": {}}
+    text = _measured(check_reason("train_and_validation_agree", ev)["measured"])
+    assert text.startswith("training_gain=0.7, validation_gain=0.1") and "validation_explained_ms=0.19" in text
