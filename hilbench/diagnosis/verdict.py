@@ -331,11 +331,11 @@ def _members_before_their_pairs(cands: list[Candidate]) -> None:
     sensor delay hidden) asymmetry alone lowered validation 42 % and a saturation partner, not
     significant alone, took it to 53 % and the pair ranked first."""
     for pair in [c for c in cands if "pair" in c.evidence]:
-        alone = [k for k, c in enumerate(cands) if c.significant and c.effect in pair.evidence["pair"]]
-        if alone and cands.index(pair) < max(alone):
+        alone = [c for c in cands if c.significant and c.effect in pair.evidence["pair"]]
+        last = max((cands.index(c) for c in alone), default=-1)
+        if cands.index(pair) < last:
             cands.remove(pair)
-            cands.insert(max(k for k, c in enumerate(cands) if c.significant and c.effect in pair.evidence["pair"]) + 1,
-                         pair)
+            cands.insert(last, pair)  # the pair's removal moved the last member to ``last - 1``
 
 
 def rank(cands: list[Candidate]) -> None:

@@ -457,8 +457,8 @@ def _fit_model(
             cold = np.clip(problem.to_x(np.array([defaults.get(id(p), p.value) for p in params])), lo, hi)
             everything = np.ones(len(params), dtype=bool)
             # as many cold searches as a cold fit runs (its scan's best points): the second start of
-            # a cold PMPI fit reached optima the first missed (seeds 53, 59: training 0.0736 vs
-            # 0.0850 um, validation 0.0103 vs 0.0392 um), so a refit with fewer would search less
+            # a cold PMPI fit reached optima the first missed (seed 59: training 0.0074 vs 0.0085 um,
+            # validation 0.0103 vs 0.039 um; seed 53 likewise), so a refit with fewer would search less
             # than fitting the spec from scratch (decision 0029)
             coldest = _scored(problem, _start_points(model, runs, train_masks, problem, cold, everything,
                                                      global_starts, seed))[: max(1, local_starts)]
