@@ -5,20 +5,26 @@ blocks of rows, not rows. Two alternatives matter and no single test has power a
 (docs/decisions/0022):
 
 * a gain **spread** over the record (a lag, a temperature drift): most blocks improve a little.
-  The Wilcoxon signed-rank test over N_BLOCKS equal blocks (:func:`block_test`) sees it; a test of
-  the summed difference does too, but is noisier on heavy-tailed block differences.
+  The Wilcoxon signed-rank statistic sees it; the summed difference does too, but is noisier on
+  heavy-tailed block differences.
 * a gain **concentrated** where the effect acts (saturation at the largest drive, a resonance rung
   by a triangle's corners, a velocity term on the fastest stretches): a few blocks improve a lot,
-  the rest do not change. The signed-rank test counts those few blocks as few and misses it; the
-  sum of the block differences, tested by random sign flips (:func:`sum_test`), does not.
+  the rest do not change. The signed ranks count those few blocks as few and miss it; the sum of
+  the block differences does not.
 
-:func:`improvement_test` takes the smaller of the two p-values with a Bonferroni factor of two, so
-the chance that noise passes stays under the one test's level.
+Both statistics are taken over one partition into blocks SUM_TEST_BLOCK_CORRELATIONS correlation
+lengths of the squared-error difference long (:func:`block_count`), and both are referred to the
+same random sign flips of the block differences: under no effect the blocks are nearly independent
+and their differences symmetric, so every flip is as likely as the data. :func:`block_tests` takes
+the smaller of the two p-values and calibrates it on the flips themselves (how often a flip's
+smaller p is as small): an exact level for the pair, where a Bonferroni factor of two over-counts
+two tests that mostly agree (docs/decisions/0032).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -40,20 +46,6 @@ def _squared_differences(e_old: np.ndarray, e_new: np.ndarray) -> np.ndarray:
     return d
 
 
-def block_test(e_old: np.ndarray, e_new: np.ndarray, n_blocks: int = T.N_BLOCKS) -> tuple[float, int, int]:
-    """One-sided Wilcoxon signed-rank p-value that the new squared error is lower, over ``n_blocks``
-    contiguous blocks; and how many blocks improved, of how many."""
-    d_rows = _squared_differences(e_old, e_new)
-    if d_rows.size < 5:
-        return 1.0, 0, 0
-    blocks = [b for b in np.array_split(np.arange(d_rows.size), min(n_blocks, d_rows.size)) if b.size]
-    d = np.array([np.mean(d_rows[b]) for b in blocks])
-    if d.size < 5 or not np.any(d != 0):
-        return 1.0, int(np.sum(d > 0)), int(d.size)
-    p = float(stats.wilcoxon(d, alternative="greater", zero_method="zsplit").pvalue)
-    return p, int(np.sum(d > 0)), int(d.size)
-
-
 def correlation_length(x: np.ndarray) -> int:
     """Lag (samples) at which the autocorrelation of ``x`` first falls below 1/e (``x.size`` if never)."""
     x = np.asarray(x, float) - float(np.mean(x))
@@ -68,29 +60,58 @@ def correlation_length(x: np.ndarray) -> int:
     return int(below[0]) if below.size else n
 
 
-def sum_test(e_old: np.ndarray, e_new: np.ndarray) -> tuple[float, int]:
-    """One-sided sign-flip randomization p-value that the summed squared-error difference is
-    positive, over contiguous blocks SUM_TEST_BLOCK_CORRELATIONS correlation lengths long (so the
-    blocks are nearly independent and, under no effect, their differences symmetric about zero);
-    and the number of blocks. Seeded: the same data give the same p."""
+def block_count(d_rows: np.ndarray) -> int:
+    """Contiguous blocks for the tests: each SUM_TEST_BLOCK_CORRELATIONS correlation lengths of the
+    squared-error difference long (neighbours nearly independent, so under no effect the block
+    differences are symmetric about zero and their signs exchangeable), N_BLOCKS to SUM_TEST_MAX_BLOCKS."""
+    length = T.SUM_TEST_BLOCK_CORRELATIONS * correlation_length(d_rows)
+    return int(min(np.clip(d_rows.size // max(length, 1), T.N_BLOCKS, T.SUM_TEST_MAX_BLOCKS), d_rows.size))
+
+
+@dataclass(frozen=True)
+class BlockTests:
+    """The improvement tests over one partition into blocks (module docstring)."""
+
+    p: float  #: the joint p-value: the chance that noise gives a smaller of the two p-values this small
+    p_ranks: float  #: the signed-rank statistic's own sign-flip p-value (a spread gain)
+    p_sum: float  #: the summed difference's own sign-flip p-value (a concentrated gain)
+    better: int  #: blocks whose squared error fell
+    blocks: int
+
+
+def block_tests(e_old: np.ndarray, e_new: np.ndarray) -> BlockTests:
+    """One-sided sign-flip tests that the new squared error is lower, over :func:`block_count`
+    contiguous blocks: the Wilcoxon signed-rank statistic and the summed difference, each with its
+    own p-value, and their joint p-value calibrated on the same flips (module docstring). Seeded:
+    the same data give the same p."""
     d_rows = _squared_differences(e_old, e_new)
     if d_rows.size < 5:
-        return 1.0, 0
-    length = T.SUM_TEST_BLOCK_CORRELATIONS * correlation_length(d_rows)
-    n_blocks = int(np.clip(d_rows.size // max(length, 1), T.N_BLOCKS, T.SUM_TEST_MAX_BLOCKS))
-    blocks = [b for b in np.array_split(np.arange(d_rows.size), min(n_blocks, d_rows.size)) if b.size]
+        return BlockTests(1.0, 1.0, 1.0, 0, 0)
+    blocks = [b for b in np.array_split(np.arange(d_rows.size), block_count(d_rows)) if b.size]
     d = np.array([np.mean(d_rows[b]) for b in blocks])
+    better = int(np.sum(d > 0))
     if d.size < 5 or not np.any(d != 0):
-        return 1.0, int(d.size)
-    signs = np.random.default_rng(0).choice(np.array([-1.0, 1.0]), size=(T.SUM_TEST_FLIPS, d.size))
-    exceed = int(np.sum(signs @ d >= d.sum() - 1e-12 * np.abs(d).sum()))
-    return (1 + exceed) / (1 + T.SUM_TEST_FLIPS), int(d.size)
+        return BlockTests(1.0, 1.0, 1.0, better, int(d.size))
+    flips = T.SUM_TEST_FLIPS
+    flipped = np.random.default_rng(0).choice(np.array([-1.0, 1.0]), size=(flips, d.size)) * d
+    ranks = stats.rankdata(np.abs(d))
+    ranks_null = (flipped > 0) @ ranks  # a flip only moves a block between the signs; its rank stays
+    sums_null = flipped.sum(axis=1)
+    tolerance = 1e-12 * float(np.abs(d).sum())
+
+    def p_of(null: np.ndarray, observed: np.ndarray, tol: float) -> np.ndarray:
+        ordered = np.sort(null)  # (1 + flips at least as large) / (1 + flips): the observed counts once
+        return (1 + flips - np.searchsorted(ordered, observed - tol, side="left")) / (1 + flips)
+
+    p_ranks = float(p_of(ranks_null, np.array([ranks[d > 0].sum()]), 1e-9)[0])
+    p_sum = float(p_of(sums_null, np.array([d.sum()]), tolerance)[0])
+    smaller_null = np.minimum(p_of(ranks_null, ranks_null, 1e-9), p_of(sums_null, sums_null, tolerance))
+    p = float((1 + np.sum(smaller_null <= min(p_ranks, p_sum))) / (1 + flips))
+    return BlockTests(min(p, 1.0), p_ranks, p_sum, better, int(d.size))
 
 
 def improvement_test(e_old: np.ndarray, e_new: np.ndarray) -> tuple[float, int, int]:
-    """p-value that the new error is lower, against a spread or a concentrated gain: twice the
-    smaller of :func:`block_test`'s and :func:`sum_test`'s (Bonferroni), at most 1; and the signed-rank
-    test's blocks improved, of how many."""
-    p_spread, better, blocks = block_test(e_old, e_new)
-    p_concentrated, _ = sum_test(e_old, e_new)
-    return min(1.0, 2.0 * min(p_spread, p_concentrated)), better, blocks
+    """The joint p-value of :func:`block_tests` that the new error is lower, against a spread or a
+    concentrated gain; and how many blocks improved, of how many."""
+    t = block_tests(e_old, e_new)
+    return t.p, t.better, t.blocks

@@ -14,17 +14,18 @@ MIN_GAIN = 0.10
 #: ten candidates and a false effect costs the user a wrong model.
 P_MAX = 0.01
 
-#: Contiguous validation blocks of the signed-rank test: enough for p < 0.01 to be reachable
-#: (needs at least 7 of 7), few enough that blocks are longer than the residual's correlation.
+#: The fewest contiguous validation blocks of the tests: enough for p < 0.01 to be reachable by the
+#: signed ranks (needs at least 7 of 7); a short record gets this many even when they are shorter
+#: than SUM_TEST_BLOCK_CORRELATIONS correlation lengths.
 N_BLOCKS = 20
 
-#: The sign-flip test of the summed difference (a gain concentrated in a few stretches, decision
-#: 0022) uses blocks this many correlation lengths of the squared-error difference long: at 1/e per
-#: length neighbours share under 5 % of their variance, so the block differences are nearly independent ...
+#: The tests use blocks this many correlation lengths of the squared-error difference long: at 1/e
+#: per length neighbours share under 5 % of their variance, so the block differences are nearly
+#: independent and their signs exchangeable under no effect (decisions 0022, 0032) ...
 SUM_TEST_BLOCK_CORRELATIONS = 10
 #: ... at least N_BLOCKS and at most this many (more blocks add resolution the flips cannot use) ...
 SUM_TEST_MAX_BLOCKS = 200
-#: ... and this many random sign flips: p resolves to 1e-4, far below P_MAX / 2.
+#: ... and this many random sign flips: p resolves to 1e-4, far below P_MAX.
 SUM_TEST_FLIPS = 10000
 
 #: The current validation rmse must exceed this multiple of the noise floor: an error at the

@@ -15,7 +15,7 @@ from hilbench.rig.config import load_rig
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.refit import spec_with
 from hilbench.diagnosis.rows import noise_floor
-from hilbench.diagnosis.significance import block_test
+from hilbench.diagnosis.significance import improvement_test
 from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.sim.plant import Plant
 from tests.conftest import MINIMAL_RIG
@@ -310,9 +310,9 @@ def test_helpers():
     rng = np.random.default_rng(0)
     e = rng.normal(0, 0.5, 4000)
     assert abs(noise_floor(e, np.zeros(4000, int)) - 0.5) < 0.05
-    p, _, _ = block_test(e, e + rng.normal(0, 0.01, 4000))
+    p, _, _ = improvement_test(e, e + rng.normal(0, 0.01, 4000))
     assert p > 0.01  # noise alone does not pass
-    p, better, n = block_test(e, 0.5 * e)
+    p, better, n = improvement_test(e, 0.5 * e)
     assert p < 0.01 and better == n
 
 
