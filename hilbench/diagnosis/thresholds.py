@@ -45,6 +45,11 @@ NOISE_HOLD_SETTLE_S = 0.1
 #: A real effect is learned on one set of rows and holds on unseen rows: the validation gain must be
 #: at least this fraction of the training gain (else: more parameters, not physics) ...
 AGREE_VALIDATION_OVER_TRAIN = 0.5
+#: ... or, on the validation rows, the mean square the refit removed is at least this fraction of the
+#: mean square of its change there (1: the change is error removed; -1: unrelated to the error; 0.5:
+#: the error held three quarters of the change), so validation rows that hold less of the effect
+#: than training's still confirm it (decision 0033) ...
+AGREE_CHANGE_EXPLAINED = 0.5
 #: ... and the training gain at least this fraction of the validation gain (else: chance extrapolation).
 AGREE_TRAIN_OVER_VALIDATION = 0.25
 
