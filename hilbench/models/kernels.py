@@ -95,7 +95,7 @@ def lowpass_columns(x: np.ndarray, alpha: float, state: np.ndarray, out: np.ndar
 
 @njit(cache=True)
 def turning_point_frequency(u: np.ndarray, fs: float, state: np.ndarray, f_out: np.ndarray, a_out: np.ndarray) -> None:
-    """Drive frequency (Hz) and amplitude from the last half cycle between turning points.
+    """Drive frequency (Hz) and amplitude from the last cycle between turning points.
 
     The same estimator as the simulated plant's 003 rate-dependence
     (:func:`hilbench.sim.kernels.turning_point_update`); ``state`` has ``N_TP`` entries.

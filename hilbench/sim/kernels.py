@@ -119,9 +119,11 @@ TP_DIR = 2  # +1 rising, -1 falling, 0 unknown
 TP_TURN_V = 3  # input at the last turning point
 TP_TURN_T = 4  # time of the last turning point, samples (sub-sample)
 TP_F = 5  # estimated frequency, Hz
-TP_A = 6  # estimated amplitude (half the last excursion)
+TP_A = 6  # estimated amplitude (half the mean excursion of the last two half cycles)
 TP_N = 7  # samples seen
-N_TP = 8
+TP_HALF = 8  # duration of the last half cycle, s (0 before the first)
+TP_EXC = 9  # excursion of the last half cycle, input unit
+N_TP = 10
 
 
 @njit(cache=True, inline="always")
@@ -130,13 +132,23 @@ def turning_point_update(st: np.ndarray, v: float, fs: float) -> None:
 
     At each reversal of the input the turning point is located to a fraction of a sample by a
     parabola through the three samples around it (so the estimate does not jump by a whole sample
-    period at high drive frequencies); f = 1 / (2 x the last half period), A = half the excursion.
+    period at high drive frequencies). The period is measured as a frequency counter does, between
+    turning points of the same kind (maximum to maximum, minimum to minimum): f = 1 / (the last two
+    half periods), A = a quarter of their two excursions. A single half period would read a step
+    between two segments (the input falls for a sample or two, then rises on) as a drive near
+    fs / 2 held until the next reversal, and an unsymmetric wave (a sawtooth) as two
+    alternating frequencies; the full cycle holds the true half period on each side of such a
+    pair, so a cycle cut by a junction reads at most a few times fast. Until a whole cycle is seen
+    f = 0 (the rate-independent loop, k(0)), and the start of motion from rest is not a turning
+    point: the input did not reverse there (a first step and the drive after it read as a
+    one-sample half cycle).
     """
     n = st[TP_N]
     if n == 0.0:
         st[TP_V1] = v
         st[TP_V2] = v
         st[TP_TURN_V] = v
+        st[TP_TURN_T] = -1.0  # no turning point yet
     dv = v - st[TP_V1]
     d = 1.0 if dv > 0.0 else (-1.0 if dv < 0.0 else 0.0)
     if d != 0.0 and d != st[TP_DIR]:
@@ -148,13 +160,18 @@ def turning_point_update(st: np.ndarray, v: float, fs: float) -> None:
             delta = min(max(0.5 * (a - c) / den, -0.5), 0.5)
             peak = b - 0.25 * (a - c) * delta
         t_turn = n - 1.0 + delta
-        if st[TP_DIR] != 0.0:
+        if st[TP_DIR] != 0.0 and st[TP_TURN_T] >= 0.0:
             half = (t_turn - st[TP_TURN_T]) / fs
             if half > 0.0:
-                st[TP_F] = 0.5 / half
-                st[TP_A] = 0.5 * abs(peak - st[TP_TURN_V])
-        st[TP_TURN_V] = peak
-        st[TP_TURN_T] = t_turn
+                exc = abs(peak - st[TP_TURN_V])
+                if st[TP_HALF] > 0.0:
+                    st[TP_F] = 1.0 / (half + st[TP_HALF])
+                    st[TP_A] = 0.25 * (exc + st[TP_EXC])
+                st[TP_HALF] = half
+                st[TP_EXC] = exc
+        if st[TP_DIR] != 0.0:
+            st[TP_TURN_V] = peak
+            st[TP_TURN_T] = t_turn
         st[TP_DIR] = d
     st[TP_V2] = st[TP_V1]
     st[TP_V1] = v
@@ -342,7 +359,7 @@ def plant_step(
         m = S[S_RATE_M]
         q = S[S_RATE_Q]
         if rate_mode == 2.0:
-            # The drive frequency and amplitude are estimated from the last half cycle between
+            # The drive frequency and amplitude are estimated from the last cycle between
             # turning points, as a bench would see them; k(f), c(f), m(f) follow 003 eq. 13.
             turning_point_update(tp_state, v, fs)
             f = tp_state[TP_F]
