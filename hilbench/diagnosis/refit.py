@@ -4,12 +4,17 @@ An effect of the registry (:data:`hilbench.effects.EFFECTS`) lists the forms it 
 the diagnosis chooses among them (``form_choice``):
 
 * ``train``: every form is fitted and the best training fit is kept, so the validation comparison
-  that judges the effect stays fair (rate-dependence: fixed velocity damping or the frequency
-  polynomials of 003; which describes the plant is not known beforehand);
+  that judges the effect stays fair (saturation: a tanh or a knee of the hysteresis output; which
+  describes the plant is not known beforehand);
 * ``inner-split``: a richer form has many more weights, so training always prefers it; an inner
   split of the training rows (its first INNER_SPLIT part fits, the rest judges) tells whether the
   extra weights carry over, and a richer form must win by RICHER_FORM_MARGIN (creep after the
   hysteresis, ``creep(form=output)``). The user's validation rows stay untouched.
+* ``inner-blocks``: as ``inner-split``, but the held-back rows are interleaved blocks spread over
+  the training rows (:func:`hilbench.identify.sweep.interleaved`): a rate form is about rates, and
+  the end of a training run holds only its last ones (rate-dependence: velocity damping, or the
+  frequency polynomials of 003 with many more weights); a richer form must also fit the training
+  rows better than the first.
 
 With a rate plan (one training rate, several validation rates) the effect's shape is calibrated
 across drive rates first and fixed (:mod:`hilbench.diagnosis.rate_calibration`).
@@ -33,6 +38,7 @@ from hilbench.diagnosis.rate_calibration import RatePlan, calibrated_spec
 from hilbench.errors import UserError
 from hilbench.identify.dataset import as_dataset
 from hilbench.identify.fitting import FitResult, assign_roles, fit
+from hilbench.identify.sweep import interleaved
 from hilbench.models.model import split_spec
 
 
@@ -105,6 +111,25 @@ def inner_rmse(result: FitResult, held_back: list[np.ndarray]) -> float:
     return float(np.sqrt(np.mean(e**2))) if e.size else float("inf")
 
 
+def choose_by_inner_blocks(paths: Any, specs: list[str], kw: dict[str, Any], start_from: Any = None) -> str:
+    """The first spec, unless a richer one predicts held-back training rows better by
+    RICHER_FORM_MARGIN; the inner fits train on the user's training rows but the
+    :func:`~hilbench.identify.sweep.validation_blocks` of 10 interleaved blocks (1 - INNER_SPLIT of
+    them, never the first) and are scored on those. The user's validation rows stay untouched."""
+    if len(specs) == 1:
+        return specs[0]
+    dataset = as_dataset(paths)
+    user = dataset.fit_runs()
+    assign_roles(user, kw.get("train"), kw.get("test"), float(kw.get("train_fraction", 0.7)), dataset.keep)
+    held_back = [interleaved(u.train, T.INNER_SPLIT)[1] for u in user]
+    if not any(h.any() for h in held_back):
+        return specs[0]
+    inner_data = replace(dataset, keep=[u.train & ~h for u, h in zip(user, held_back)])
+    scores = [inner_rmse(fit(inner_data, s, train_fraction=1.0, start_from=start_from), held_back) for s in specs]
+    best = min(range(1, len(specs)), key=lambda k: scores[k])
+    return specs[best] if scores[best] < (1.0 - T.RICHER_FORM_MARGIN) * scores[0] else specs[0]
+
+
 def choose_by_inner_split(paths: Any, specs: list[str], kw: dict[str, Any], start_from: Any = None) -> str:
     """The first spec, unless a richer one (later in ``specs``) predicts held-back training rows
     better by RICHER_FORM_MARGIN. The inner fits train on the first INNER_SPLIT of the user's
@@ -147,14 +172,15 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
         spec, _ = calibrated_spec(paths, base.spec, effect, plan)
         return fit(paths, spec, **kw)
     specs = effect_specs(base.spec, effect)
-    if E.effect(effect).form_choice == "inner-split":
-        chosen = choose_by_inner_split(paths, specs, kw, base.model)
-        return fit(paths, chosen, **kw)
-    best: FitResult | None = None
-    for spec in specs:
-        fitted = fit(paths, spec, **kw)
-        # choose among the forms on training rows only, so the validation comparison stays fair
-        if best is None or fitted.metrics["train"]["rmse"] < best.metrics["train"]["rmse"]:
-            best = fitted
-    assert best is not None
-    return best
+    choice = E.effect(effect).form_choice
+    if choice == "inner-split":
+        return fit(paths, choose_by_inner_split(paths, specs, kw, base.model), **kw)
+    fits = [fit(paths, spec, **kw) for spec in specs]
+    # choose among the forms on training rows only, so the validation comparison stays fair
+    best = min(range(len(fits)), key=lambda k: fits[k].metrics["train"]["rmse"])
+    if choice == "inner-blocks" and best > 0:
+        # a richer form must fit the training rows better and predict held-back blocks of them
+        # better too (decision 0034)
+        chosen = choose_by_inner_blocks(paths, [specs[0], specs[best]], kw, base.model)
+        best = best if chosen == specs[best] else 0
+    return fits[best]
