@@ -154,7 +154,7 @@ def bench_step(samples: int, chunk: int) -> dict[str, Any]:
 def _component_kernels() -> dict[str, Any]:
     from numba import njit
 
-    from hilbench.online.inverse import comp_step, comp_update
+    from hilbench.online.inverse_kernels import comp_step, comp_update
     from hilbench.online.oiir import fpmpi_step, oiir_step
     from hilbench.sim.kernels import plant_step_flat
 

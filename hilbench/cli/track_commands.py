@@ -41,7 +41,7 @@ def track(
     A configuration that cannot be stable (004 eq. 16 violated with no gain, PID gains that
     destabilise the loop) is refused before anything moves.
     """
-    from hilbench.online.inverse import PID
+    from hilbench.online.pid import PID
     from hilbench.online.tracking import plot_tracking, track as run_track
     from hilbench.rig.config import load_rig
     from hilbench.rig.rig import Rig

@@ -1,11 +1,11 @@
 """The closed loop: reference -> compensator -> rig safety path -> plant -> feedback, at the fixed rate.
 
 On a simulated rig the whole loop is ONE fused numba loop per block (:func:`closed_loop_block`):
-per sample the compensator's command (:func:`hilbench.online.inverse.comp_step`), the rig's safety
+per sample the compensator's command (:func:`hilbench.online.inverse_kernels.comp_step`), the rig's safety
 path with :func:`hilbench.rig.safety.command_path` semantics (NaN holds the last applied value,
 clamp to ``[min, max]``, slew limit ``max_rate / fs``), the plant
 (:func:`hilbench.sim.kernels.plant_step_flat`) and the commit of the applied command and the
-measurement (:func:`hilbench.online.inverse.comp_update`: model memory, PID, OIIR identifier). It
+measurement (:func:`hilbench.online.inverse_kernels.comp_update`: model memory, PID, OIIR identifier). It
 is compiled with ``_nrt=False`` (it allocates nothing; see :mod:`hilbench.models.stepping`), so the
 inlined steps pay no reference counting; the compensator's step and commit (with the identifier)
 are inlined too, so no per-sample call copies their ~30 array arguments. Both loops use numpy's error
@@ -38,7 +38,8 @@ import numpy as np
 from numba import njit
 
 from hilbench.errors import UserError
-from hilbench.online.inverse import PID, Compensator, comp_step, comp_update
+from hilbench.online.inverse import PID, Compensator
+from hilbench.online.inverse_kernels import comp_step, comp_update
 from hilbench.rig.safety import ramp
 from hilbench.sim import kernels as K
 
