@@ -263,7 +263,12 @@ class Creep(Component):
                     c = len(cols) + k * p
                     np.subtract(out, x, out=mat[:, c : c + p])
                     names += [f"{b.names[j]}*creep[tau={tau:.3g}s]" for b, keep in hyst for j in keep]
-                return Columns.of(mat, names)
+                # a copy's weight is (creep gain >= 0: a passive material's retardation spectrum, as
+                # in the bank) x (its column's weight): >= 0 where that weight is; free copies of
+                # the operators traded against each other in training and blew up on a test run
+                # (decision 0036)
+                copy_lower = [0.0 if b.lower[j] >= 0.0 else -np.inf for b, keep in hyst for j in keep]
+                return Columns.of(mat, names, lower=[-np.inf] * len(cols) + copy_lower * taus.size)
         return Columns.of(np.column_stack(cols), names)
 
 
