@@ -19,7 +19,7 @@ def test_every_effect_names_a_plant_table_a_component_and_a_signature():
         assert effect.signature in SIGNATURES, effect.name
         assert all(r in REQUIREMENTS for r in effect.requires), effect.name
         assert effect.evidence_check is None or effect.evidence_check in EVIDENCE_CHECKS
-        assert effect.form_choice in ("train", "inner-split", "inner-blocks")
+        assert effect.form_choice in ("train", "inner-split", "inner-split-both", "inner-blocks")
     assert E.AUX_CHANNEL.signature in SIGNATURES
 
 
@@ -34,7 +34,10 @@ def test_every_form_is_a_spec_the_model_library_builds():
         for spec in effect_specs(base, effect.name):
             Model(spec)  # raises SpecError for an unknown component or option
             names = [name for name, _ in split_spec(spec)]
-            assert effect.component in names, (effect.name, spec)
+            if E.MEMORYLESS_BASE in effect.requires:  # its forms are bases that replace ``linear``
+                assert names[0] in effect.spec_parts() and names[0] in BASES, (effect.name, spec)
+            else:
+                assert effect.component in names, (effect.name, spec)
 
 
 def test_an_aux_channel_is_an_effect_by_its_name():

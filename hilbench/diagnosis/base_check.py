@@ -14,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.significance import improvement_test
 from hilbench.diagnosis.verdict import Candidate, relative_gain, validation_errors
@@ -21,9 +22,9 @@ from hilbench.errors import UserError
 from hilbench.identify.fitting import FitResult, fit
 from hilbench.models.model import split_spec
 
-#: one base per family of loop shape: play operators, M-play with polynomial, ISSF-Duhem with a
-#: dead-zone and with a Gompertz shape, Bouc-Wen
-ALTERNATIVE_BASES = ("pi", "pmpi", "duhem-d", "duhem-g", "bouc-wen")
+#: one base per family of loop shape (play operators, M-play with polynomial, ISSF-Duhem with a
+#: dead-zone and with a Gompertz shape, Bouc-Wen): the forms hysteresis takes on a memoryless base
+ALTERNATIVE_BASES = E.EFFECTS["hysteresis"].forms
 
 
 def with_base(spec: str, base: str) -> str:

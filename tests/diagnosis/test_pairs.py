@@ -153,6 +153,8 @@ def test_when_pairs_are_tried():
 
 def test_pair_specs():
     assert added_parts("pi", "pi+creep(form=bank)", "creep") == ["creep(form=bank)"]
-    assert added_parts("linear", "pi", "hysteresis") == ["hysteresis"]
+    assert added_parts("linear", "pi", "hysteresis") == ["pi"]
+    assert added_parts("linear", "duhem-d+creep", "hysteresis") == ["duhem-d"]
     assert effect_specs("pi", "creep(form=output)+load") == ["pi+creep(form=output)+load"]
     assert effect_specs("linear", "hysteresis+creep") == ["pi+creep"]
+    assert effect_specs("linear", "duhem-d+creep") == ["duhem-d+creep"]
