@@ -81,9 +81,11 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
            requires=(BROADBAND,), signature="derivatives", papers="002, 000"),
     # creep: the fixed log-spaced bank first (nothing searched, weights >= 0: little room to
     # overfit); the logarithmic law (the bank's spectrum flat, one weight), two searched elements,
-    # or creep after the hysteresis must beat it on held-back rows
+    # creep after the hysteresis (two searched elements, or the law, one weight per column:
+    # decision 0038) must beat it on held-back rows
     Effect("creep", "slow drift after a change of input, spanning decades", "creep", "creep",
-           forms=("creep(form=bank)", "creep(form=log)", "creep", "creep(form=output)"), form_choice="inner-split",
+           forms=("creep(form=bank)", "creep(form=log)", "creep", "creep(form=output)", "creep(form=log-output)"),
+           form_choice="inner-split",
            requires=(HOLDS,), signature="drift-on-holds", evidence_check="drift-on-holds", papers="literature"),
     Effect("delay", "pure time delay of amplifier, sensor or DAQ", "delay", "delay",
            requires=(BROADBAND,), signature="rate-of-change", papers="literature"),

@@ -164,17 +164,22 @@ class Creep(Component):
     (gamma) and one searched onset time t0. One weight cannot trade slow elements against the
     base's gain the way the free bank can on a short record, but a spectrum that is not of this
     shape (discrete elements) it follows only in part.
+    form = log-output: the law on the input and on every hysteresis column, one weight each (the
+    law's gamma times the column's weight, >= 0 where that weight is): creep logarithmic in time
+    that follows the hysteresis output, as the output form's elements do, at one weight per
+    column and no searched element (decision 0038).
     """
 
     name = "creep"
     summary = "slow drift after input changes: Kelvin-Voigt elements on the input and the hysteresis output"
-    FORMS = ("input", "output", "bank", "log")
+    FORMS = ("input", "output", "bank", "log", "log-output")
     options_schema = {"n": Option("int", default=2, minimum=1, maximum=12,
                                   doc="Kelvin-Voigt elements (time constants searched; form=input, output)"),
                       "form": Option("choice", default="input", choices=FORMS,
                                      doc="input: creep of the input; output: of the hysteresis output too; "
                                      "bank: a fixed log-spaced bank from 3/fs to the record's length, weights >= 0; "
-                                     "log: that bank with one weight (a logarithmic law)"),
+                                     "log: that bank with one weight (a logarithmic law); "
+                                     "log-output: the law on the input and on every hysteresis column"),
                       "per_decade": Option("number", default=3.0, minimum=0.5, maximum=6.0,
                                            doc="elements per decade of time (form=bank, log; 16 at most)")}
 
@@ -184,11 +189,11 @@ class Creep(Component):
     def prepare(self, s: Signals) -> None:
         if self._form() not in self.FORMS:
             raise UserError(f"creep(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
-        if self._form() in ("bank", "log"):
+        if self._form() in ("bank", "log", "log-output"):
             if "taus" not in self.constants:
                 duration = s.u.shape[0] / s.fs
                 per_decade = float(self.options.get("per_decade", 3.0))
-                if self._form() == "log":
+                if self._form() != "bank":
                     # the law keeps rising after the record: elements far slower than the record
                     # act within it as ramps t / tau, which a truncated spectrum would miss (on a
                     # log law, 0.146 um left against the free bank's 0.034); with one weight for
@@ -198,7 +203,7 @@ class Creep(Component):
                 else:
                     taus = creep_bank_time_constants(duration, s.fs, per_decade)
                 self.constants["taus"] = [float(t) for t in taus]
-            if self._form() == "log" and not self.params:
+            if self._form() != "bank" and not self.params:
                 taus = self.constants["taus"]
                 record = s.u.shape[0] / s.fs
                 self.params = [ShapeParam("t0", float(np.sqrt(taus[0] * record) / 10.0), 1.0 / s.fs,
@@ -216,7 +221,7 @@ class Creep(Component):
 
     def time_constants(self) -> np.ndarray:
         """The elements' time constants, s: the fixed bank's, or the searched ones."""
-        if self._form() in ("bank", "log"):
+        if self._form() in ("bank", "log", "log-output"):
             return np.asarray(self.constants.get("taus", []), float)
         return np.array([p.value for p in self.params], float)
 
@@ -246,6 +251,8 @@ class Creep(Component):
             return Columns.of(np.column_stack(cols), names, lower=0.0)
         if self._form() == "log":  # the law's spectrum over the bank: one weight, the law's gamma
             return Columns.of((np.column_stack(cols) @ self.log_spectrum())[:, None], ["creep[log]"], lower=0.0)
+        if self._form() == "log-output":
+            return self._log_output_columns(s, state, previous, np.column_stack(cols) @ self.log_spectrum())
         if self._form() == "output":
             hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
             if hyst:
@@ -270,6 +277,32 @@ class Creep(Component):
                 copy_lower = [0.0 if b.lower[j] >= 0.0 else -np.inf for b, keep in hyst for j in keep]
                 return Columns.of(mat, names, lower=[-np.inf] * len(cols) + copy_lower * taus.size)
         return Columns.of(np.column_stack(cols), names)
+
+    def _log_output_columns(self, s: Signals, state: dict[str, Any], previous: list[Columns],
+                            input_law: np.ndarray) -> Columns:
+        """form=log-output: the logarithmic law on the input (``input_law``) and on every hysteresis
+        column but the offset, one weight each (the law's gamma times the column's weight), >= 0
+        where the column's weight is (decision 0036). Piezo creep is logarithmic in time and
+        follows the strain the hysteresis made (the output form's reason), so the law acts on the
+        hysteresis output; with the law's shape fixed it costs one weight per column where the
+        output form's two searched elements cost two."""
+        hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
+        if not hyst:
+            return Columns.of(input_law[:, None], ["creep[log]"], lower=0.0)
+        x = np.ascontiguousarray(np.hstack([b.matrix[:, keep] for b, keep in hyst]))
+        taus, spectrum = self.time_constants(), self.log_spectrum()
+        if state["lp_h"] is None:  # start in steady state, as the input's low-pass does
+            state["lp_h"] = np.repeat(x[:1], taus.size, axis=0)
+        mat = np.zeros((x.shape[0], 1 + x.shape[1]))
+        mat[:, 0] = input_law
+        out = np.empty_like(x)
+        for k, tau in enumerate(taus):
+            MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
+            out -= x
+            mat[:, 1:] += spectrum[k] * out
+        names = ["creep[log]"] + [f"{b.names[j]}*creep[log]" for b, keep in hyst for j in keep]
+        lower = [0.0] + [0.0 if b.lower[j] >= 0.0 else -np.inf for b, keep in hyst for j in keep]
+        return Columns.of(mat, names, lower=lower)
 
 
 #: A gain on the loop (rate-dependence's k, an aux channel's) is held at or above this fraction of

@@ -502,14 +502,23 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
         I[I_NCREEP] = nc
         I[I_CREEP_A] = f.put([1.0 - math.exp(-1.0 / (fs * t)) for t in taus])
         I[I_X_LP] = f.state(nc)
-        if str(creep.options.get("form", "input")) == "log":
-            # the logarithmic law: one weight over the whole bank, copied per element for the kernel
-            I[I_W_CREEP] = f.put(float(w[k]) * creep.log_spectrum())
+        form = str(creep.options.get("form", "input"))
+        if form in ("log", "log-output"):
+            # the logarithmic law: one weight per column over the whole bank, copied per element for
+            # the kernel (the input's nc, then the hysteresis columns' nc x nk, element-major)
+            spectrum = creep.log_spectrum()
+            per_element = [float(w[k]) * spectrum]
             k += 1
+            if form == "log-output":
+                per_element.append(np.outer(spectrum, w[k : k + nk]).ravel())
+                I[I_CREEP_OUT] = 1
+                I[I_X_LPH] = f.state(nc * nk)
+                k += nk
+            I[I_W_CREEP] = f.put(np.concatenate(per_element))
         else:
             I[I_W_CREEP] = I[I_W] + k
             k += nc
-        if str(creep.options.get("form", "input")) == "output":
+        if form == "output":
             I[I_CREEP_OUT] = 1
             I[I_X_LPH] = f.state(nc * nk)
             k += nc * nk

@@ -1,6 +1,7 @@
 """Creep over decades, diagnosed: a PI with logarithmic creep after each input step (ms to the
-record's length) is diagnosed from ``pi``; creep ranks first and significant, the data choose the
-fixed log-spaced bank (``creep(form=bank)``), and --auto lowers the validation error many times.
+record's length) is diagnosed from ``pi``; creep ranks first and significant, the data choose a
+form over the fixed log-spaced bank (``creep(form=bank)``, or the logarithmic law on it), and --auto
+lowers the validation error many times.
 
 Measured when written (80 s at 1 kHz, the last 30 % validation): creep first, p ~1e-6, validation
 rmse 1.028 -> 0.034 um with ``pi+creep(form=bank)``; before the bank, the diagnosis added ``creep``
@@ -36,7 +37,10 @@ def test_logarithmic_creep_is_found_and_the_bank_removes_it(tmp_path):
     assert first[0].significant and first[0].evidence["p_value"] < 0.01, summary
     added = [s["added"] for s in d.steps[1:]]
     assert added and added[0] == "creep", added
-    assert "creep(form=bank)" in d.steps[1]["spec"], d.steps[1]["spec"]  # the data chose the bank
+    # the data chose a form over the log-spaced bank (the bank, the law on the input or the law on
+    # the input and the hysteresis columns: alike on this law), not two searched elements
+    spec = d.steps[1]["spec"]
+    assert any(f"creep(form={f})" in spec for f in ("bank", "log", "log-output")), spec
     before, after = d.steps[0]["validation"]["rmse"], d.steps[-1]["validation"]["rmse"]
     print("validation rmse", before, "->", after, [s["spec"] for s in d.steps])
     # the issue asks for 3x; the bank gives 30x (two fitted elements: about 3x, 1.03 -> 0.32 um)

@@ -57,12 +57,13 @@ ALL_BASES = ["linear", "pi", "pi1", "mpi", "pmpi", "pd", "fpmpi", "duhem-g", "du
 EFFECT_SPECS = [
     "pi+asymmetry", "pi+asymmetry(order=3)", "pi+saturation", "pi+saturation(form=input)", "pi+saturation(form=knee)",
     "pi+creep", "pi+creep(form=bank)", "pi+creep(form=log)", "pi+asymmetry+creep(form=bank,per_decade=3)+dynamics",
-    "pi+creep(n=3,form=output)", "pi+rate-dependence(form=damping)", "pi1+asymmetry+rate-dependence(form=frequency)",
+    "pi+creep(n=3,form=output)", "pmpi+creep(form=log-output)", "pi+rate-dependence(form=damping)", "pi1+asymmetry+rate-dependence(form=frequency)",
     "pi+rate-dependence(form=frequency,waveform=triangle)", "pmpi+dynamics", "fpmpi+dynamics+delay", "pi+temperature",
     "pi(n=16)+delay+dynamics(kind=first-order)", "pi+dynamics(kind=discrete,pairs=1,zeros=1)",
     "pmpi+asymmetry+saturation+creep(form=output)+rate-dependence(form=damping)+temperature+delay+dynamics",
     "duhem-d+asymmetry+saturation+creep+rate-dependence(form=frequency)+temperature+delay+dynamics",
     "bouc-wen+saturation+creep(form=output)+temperature+dynamics(kind=first-order)",
+    "duhem-d+asymmetry+creep(form=log-output)+delay",
     "linear+asymmetry+saturation(form=input)+rate-dependence(form=damping)+delay",
 ]
 
