@@ -248,6 +248,11 @@ class _ColumnCache:
 
     def _prefix_keys(self) -> list[tuple[float, ...]]:
         keys, values = [], []
+        # a component that shapes the drive (a Hammerstein saturation) changes every block, the
+        # base's too: its parameters lead every key
+        shaping = self.model.input_shaping()
+        if shaping is not None:
+            values += [p.value for p in shaping.shape()]
         for c in self.model.components:
             values += [p.value for p in c.shape()]
             keys.append(tuple(values))
@@ -311,7 +316,9 @@ def _start_points(model: Model, runs: list[RunData], train_masks: list[np.ndarra
     spread = {id(p) for p, f in zip(problem.params, fresh) if f}
     searched = [c for c in model.components if any(id(p) in spread for p in c.shape())]
     if global_starts is None:
+        # (a knee on the drive moves the memory's thresholds through the data: scanned)
         global_starts = 0 if all(c.name in ("pmpi", "fpmpi", "asymmetry", "saturation", "rate-dependence")
+                                 and not getattr(c, "shapes_input", False)
                                  for c in searched) else 8 + 4 * int(fresh.sum())
     candidates = [x0]
     if global_starts > 0 and fresh.any():

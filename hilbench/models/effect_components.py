@@ -64,11 +64,19 @@ class Saturation(Component):
                                   doc="knee, fixed instead of searched"),
                       "p": Option("number", minimum=0.0, exclusive_minimum=True, maximum=100.0,
                                   doc="knee sharpness (form=knee), fixed instead of searched"),
-                      "form": Option("choice", default="output", choices=("output", "knee", "input"),
+                      "form": Option("choice", default="output",
+                                     choices=("output", "knee", "input", "hammerstein"),
                                      doc="output: the hysteresis output saturates (tanh); knee: with a knee of "
-                                     "adjustable sharpness; input: memoryless terms alone")}
-    #: form -> the flattening phi(x) of the hysteresis output (x = v / s); ``input``: none
-    FORMS = ("output", "knee", "input")
+                                     "adjustable sharpness; input: memoryless terms alone; hammerstein: the "
+                                     "drive itself saturates with a knee before the hysteresis")}
+    #: form -> the flattening phi(x) of the hysteresis output (x = v / s); ``input``: none;
+    #: ``hammerstein``: the whole model sees the knee-shaped drive (:meth:`shape_input`)
+    FORMS = ("output", "knee", "input", "hammerstein")
+
+    @property
+    def shapes_input(self) -> bool:
+        """The form shapes the drive before every other component (a Hammerstein model)."""
+        return self.options.get("form") == "hammerstein"
 
     def prepare(self, s: Signals) -> None:
         form = str(self.options.get("form", "output"))
@@ -76,11 +84,25 @@ class Saturation(Component):
             raise UserError(f"saturation(form={self.options['form']}): expected form={', form='.join(self.FORMS)}")
         if not self.params:
             self.params = [ShapeParam("s", 0.5, 0.05, 3.0, "normalised input", log=True, doc="tanh knee")]
-            if form == "knee":
+            if form in ("knee", "hammerstein"):
                 # sharpness of the knee h / (1 + |h/s|^p)^(1/p): p = 1 soft, p -> inf a hard clip
                 self.params.append(ShapeParam("p", 2.0, 0.7, 8.0, "", log=True, doc="knee sharpness"))
 
-    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
+    def shape_input(self, v: np.ndarray) -> np.ndarray:
+        """The drive as the actuator sees it when it saturates before the hysteresis (an amplifier
+        or a field that flattens, not the strain): g(v) = k(v / s) / k(1 / s) with the knee
+        k(x) = x / (1 + |x|^p)^(1/p). Divided by k(1 / s) so that g(+-1) = +-1: the shaped drive
+        spans the training range as the raw one did, and the base's thresholds, set from that
+        range, stay where they were (the weights take the scale)."""
+        if not self.params:  # before prepare: the raw drive
+            return v
+        s_knee, p = self.param("s"), self.param("p")
+        x = v / s_knee
+        return x * knee_flattening(x, p) / float(knee_flattening(np.array([1.0 / s_knee]), p)[0] / s_knee)
+
+    def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns | None:
+        if self.shapes_input:
+            return None  # it acts on the drive every column is computed from (Model._signals)
         v = s.v
         sq = np.sign(v) * np.sqrt(np.abs(v))
         cb = np.sign(v) * np.abs(v) ** (1.0 / 3.0)

@@ -103,14 +103,27 @@ class Model:
         """Normalised input and its rate; ``u_before`` is the sample before the first (chunks)."""
         scale = float(self.norm["u_scale"])
         v = u_delayed / scale
+        shaping = self.input_shaping()
+        if shaping is not None:
+            # the drive saturates before everything else (a Hammerstein model): every component,
+            # the base's memory included, sees the shaped drive, in command units as in normalised
+            v = shaping.shape_input(v)
+            u_delayed = v * scale
         # backward difference: causal, as the step mode and a real-time compensator compute it
         vdot = np.empty_like(v)
         vdot[1:] = np.diff(v) * run.sample_rate_hz
         if u_before is not None:
-            vdot[:1] = (v[:1] - u_before / scale) * run.sample_rate_hz
+            v_before = u_before / scale
+            if shaping is not None:
+                v_before = float(shaping.shape_input(np.array([v_before]))[0])
+            vdot[:1] = (v[:1] - v_before) * run.sample_rate_hz
         else:
             vdot[:1] = 0.0  # nothing before the first sample: at rest, as the step mode starts
         return Signals(u_delayed, v, vdot, run.aux, run.sample_rate_hz, self.norm)
+
+    def input_shaping(self) -> Component | None:
+        """The effect that shapes the drive before the base (``saturation(form=hammerstein)``), or None."""
+        return next((e for e in self.effects if getattr(e, "shapes_input", False)), None)
 
     def _delayed(self, run: RunData) -> np.ndarray:
         return np.ascontiguousarray(run.input, dtype=np.float64)
@@ -432,11 +445,10 @@ class ModelStepper:
     def step_python(self, u: float, aux: dict[str, float] | None = None) -> float:
         """The Python step mode: the block-mode component code on blocks of one sample."""
         m = self.model
-        scale = float(m.norm["u_scale"])
-        v = np.array([u / scale])
-        vdot = np.array([0.0 if self.u_prev is None else (u - self.u_prev) / scale * self.fs])
+        one = RunData(np.array([float(u)]), None, {k: np.array([x]) for k, x in (aux or {}).items()}, self.fs)
+        # the block path's signals on a block of one sample (the drive shaped, the rate from the last)
+        s = m._signals(one, one.input, self.u_prev)
         self.u_prev = u
-        s = Signals(np.array([u]), v, vdot, {k: np.array([x]) for k, x in (aux or {}).items()}, self.fs, m.norm)
         blocks: list[Columns] = []
         for c, state in zip(m.components, self.states):
             block = c.columns(s, state, blocks)

@@ -221,6 +221,8 @@ def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]
         if kind == "asymmetry":
             k = int(_opt(e, "order")) - 1
             cols, hyst = cols + k, hyst + k
+        elif kind == "saturation" and _opt(e, "form") == "hammerstein":
+            shape += 2  # a knee on the drive: no columns of its own
         elif kind == "saturation":
             k = 3 + (hyst if _opt(e, "form") in ("output", "knee") else 0)
             cols, hyst, shape = cols + k, hyst + k, shape + (2 if _opt(e, "form") == "knee" else 1)

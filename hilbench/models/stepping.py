@@ -86,7 +86,8 @@ I_NB = 46  # base columns
 I_NX = 47  # length of X
 I_RATE_K = 48  # P offset: rate-dependence gain coefficients (damping: g; frequency: k_1..k_order)
 I_AUX_G = 49  # P offset: aux channels' gain coefficients g
-N_I = 50
+I_SHAPE_IN = 50  # 1 = the drive is shaped by a knee before everything (saturation(form=hammerstein))
+N_I = 51
 
 # -- scalars: indices into P --------------------------------------------------------------------------
 P_FS = 0
@@ -107,7 +108,10 @@ P_DELAY_FRAC = 14
 P_DYN_B0 = 15  # b[0] (the whole filter when it is a pure gain)
 P_SAT_P = 16  # sharpness of the saturation knee (form=knee)
 P_GAIN_FLOOR = 17  # floor of the loop gains (effect_components.GAIN_FLOOR)
-N_P = 18
+P_SHAPE_S = 18  # the drive's knee (form=hammerstein), normalised input
+P_SHAPE_P = 19  # its sharpness
+P_SHAPE_NORM = 20  # k(1 / s): the shaped drive is k(v / s) / k(1 / s)
+N_P = 21
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
 X_STARTED = 0
@@ -133,6 +137,10 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     channel values in the model's order; returns the model output, um. Updates X in place."""
     fs = P[P_FS]
     v = u / P[P_USCALE]
+    if I[I_SHAPE_IN] == 1:  # the drive saturates before everything (Saturation.shape_input)
+        xs = v / P[P_SHAPE_S]
+        v = xs * (1.0 + abs(xs) ** P[P_SHAPE_P]) ** (-1.0 / P[P_SHAPE_P]) / P[P_SHAPE_NORM]
+        u = v * P[P_USCALE]
     first = X[X_STARTED] == 0.0
     vdot = 0.0 if first else (v - X[X_V_PREV]) * fs
     X[X_V_PREV] = v
@@ -477,7 +485,12 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     I[I_NKPRE] = nba - 1
     sat = model.effect("saturation")
     n_sat = 0
-    if sat is not None:
+    if sat is not None and sat.shapes_input:
+        s_knee, p_knee = sat.param("s"), sat.param("p")
+        I[I_SHAPE_IN] = 1
+        f.P[P_SHAPE_S], f.P[P_SHAPE_P] = s_knee, p_knee
+        f.P[P_SHAPE_NORM] = (1.0 / s_knee) * (1.0 + (1.0 / s_knee) ** p_knee) ** (-1.0 / p_knee)
+    elif sat is not None:
         form = str(sat.options.get("form", "output"))
         output_form = form in ("output", "knee")
         I[I_SAT] = {"output": 2, "knee": 3}.get(form, 1)

@@ -65,6 +65,8 @@ EFFECT_SPECS = [
     "bouc-wen+saturation+creep(form=output)+temperature+dynamics(kind=first-order)",
     "duhem-d+asymmetry+creep(form=log-output)+delay",
     "linear+asymmetry+saturation(form=input)+rate-dependence(form=damping)+delay",
+    "pmpi+saturation(form=hammerstein)+creep(form=log-output)+rate-dependence(form=damping)+dynamics",
+    "duhem-d+saturation(form=hammerstein)+asymmetry+delay", "bouc-wen+saturation(form=hammerstein)+temperature",
 ]
 
 
