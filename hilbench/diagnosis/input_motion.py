@@ -33,6 +33,13 @@ TURNING_SPAN = 0.02
 #: amplitude and reach ~30x its drive frequency; a sine's end at its own frequency.
 EXCITED_OVER_NOISE = 100.0
 EXCITED_RELATIVE = 1e-6
+#: A half cycle counts as a loop at its rate when it spans at least this fraction of the input span:
+#: a reversal in the jitter of a hold or a noise drive's ripple draws no loop a rate term could fit.
+LOOP_MIN_SPAN = 0.1
+#: A rate is present in the loops when at least this many half cycles (two full loops) run at it or
+#: beyond it: three loops of a 9 Hz triangle before minutes at 0.7 Hz are a second rate a rate term
+#: is fitted on, though they fill a few percent of the time.
+LOOP_HALF_CYCLES = 4
 
 
 def input_noise(u: np.ndarray) -> float:
@@ -131,6 +138,15 @@ def half_cycle_frequencies(flips: np.ndarray, fs: float) -> np.ndarray:
     return fs / (2.0 * np.diff(flips)) if flips.size >= 2 else np.zeros(0)
 
 
+def loop_spread(f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
+    """Spread of drive frequencies counted in loops: the LOOP_HALF_CYCLES-th fastest over the
+    LOOP_HALF_CYCLES-th slowest frequency of the half cycles spanning LOOP_MIN_SPAN of the input
+    span (1 when fewer than two such sets exist)."""
+    f = np.sort(f[amplitude >= LOOP_MIN_SPAN * span])
+    k = LOOP_HALF_CYCLES
+    return float(f[-k] / f[k - 1]) if f.size >= 2 * k else 1.0
+
+
 def _time_percentile(f: np.ndarray, q: float) -> float:
     """The ``q``-th percentile of half-cycle frequencies, each weighted by its duration 1/(2f)."""
     order = np.argsort(f)
@@ -140,21 +156,26 @@ def _time_percentile(f: np.ndarray, q: float) -> float:
 
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
-    over time of the half-cycle frequencies), their range (Hz), the longest hold (s), the number of steps and
+    over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), their range (Hz), the longest hold (s), the number of steps and
     of reversals, and the highest frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
     us = [u for u in inputs if u.size]
     if span is None:
         span = max(float(np.ptp(np.concatenate(us))), 1e-12) if us else 1.0
-    freqs, plateau_s, jumps, excited = [], 0.0, 0, 0.0
+    freqs, amplitudes, plateau_s, jumps, excited = [], [], 0.0, 0, 0.0
     for u in us:
         excited = max(excited, excited_bandwidth_hz(u, fs))
         m = motion(u, fs, span)
         freqs.append(half_cycle_frequencies(m["flips"], fs))
+        turns = u[np.maximum(m["flips"] - 1, 0)]  # the input where each reversal turns
+        amplitudes.append(np.abs(np.diff(turns)) if turns.size >= 2 else np.zeros(0))
         plateau_s = max(plateau_s, float(m["since"].max()))
         jumps += int(np.count_nonzero(np.abs(np.diff(u)) > STEP_FRACTION * span))
     f = np.concatenate(freqs) if freqs else np.zeros(0)
-    # percentiles over time, not over half cycles: 3 s at 1 Hz weigh as much as 3 s at 9 Hz
+    # percentiles over time: 3 s at 1 Hz weigh as much as 3 s at 9 Hz, so the short reversals of a
+    # noisy stretch do not make a spread; but a few full loops at a second rate are a second rate
+    # however short they are (decision 0040), so counted in loops too
     spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
+    spread = max(spread, loop_spread(f, np.concatenate(amplitudes) if amplitudes else np.zeros(0), span))
     return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
             "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
