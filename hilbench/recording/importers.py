@@ -17,17 +17,17 @@ Sources are addressed by
 The target ``-`` drops a column. Every source is read and checked completely before the output
 file is touched, so a bad source leaves no file behind and an existing recording unchanged.
 Problems are raised as :class:`hilbench.errors.DataError`, one line naming file, line, column, value.
+
+This module maps, checks and writes; a source's columns are read by
+:mod:`hilbench.recording.source_columns`, text and unit spellings by :mod:`hilbench.recording.units`.
 """
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import io
 import os
 import re
 import tempfile
-import unicodedata
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -37,18 +37,23 @@ import numpy as np
 from hilbench import progress
 from hilbench.errors import DataError
 from hilbench.recording.hdf5 import CANONICAL_CHANNELS, RecordingWriter, check_recording
+from hilbench.recording.source_columns import (
+    CHANNEL_RE,
+    SourceColumn,
+    column_listing,
+    csv_columns,
+    mat_columns,
+    parse_cells,
+    resolve_column,
+)
+from hilbench.recording.units import TIME_UNITS_S, normalize_unit
 
 TEXT_SUFFIXES = (".csv", ".tsv", ".txt")
 MAT_SUFFIXES = (".mat",)
 REQUIRED = ("input", "output")
 DROP = "-"  # mapping target that drops a column
-#: Time units a source may use, with their value in s; time is always recorded in s.
-TIME_UNITS_S = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9, "min": 60.0, "h": 3600.0}
 
-_CHANNEL_RE = re.compile(r"[A-Za-z_][A-Za-z0-9_.+-]*")
 _TARGET_RE = re.compile(r"\s*([^\[\]]+?)\s*(?:\[\s*([^\[\]]*?)\s*\])?\s*")
-_HEADER_RE = re.compile(r"\s*(.*?)\s*(?:\[\s*([^\[\]]*?)\s*\]|\(\s*([^()]*?)\s*\))?\s*")
-_Y_INDEX_RE = re.compile(r"[Yy]\((\d+)\)")
 
 
 @dataclass
@@ -73,56 +78,7 @@ class ImportedRun:
         return len(self.data["time"])
 
 
-@dataclass
-class _Column:
-    """A source column before mapping: ``key`` addresses it in a mapping, ``label`` names it in messages."""
-
-    key: str
-    label: str
-    name: str | None  # channel name it gets when not mapped (None: ignored unless mapped)
-    unit: str | None
-    values: np.ndarray | None = None  # float64, None until parsed
-    cells: list[str] | None = None  # CSV text cells, parsed lazily
-    aliases: tuple[str, ...] = ()  # other keys that address it (header text with unit, dSPACE names)
-
-
-# -- text and units ------------------------------------------------------------------------
-
-
-def decode_text(raw: bytes) -> str:
-    """Text of a CSV file in UTF-8 (with or without BOM), UTF-16 (with BOM), Windows-1252 or Latin-1.
-
-    Decoded line by line where the whole file is not UTF-8, so one Latin-1 line (a comment written
-    by another tool) does not garble the UTF-8 header; "Âµm"-style double encodings are repaired
-    in :func:`normalize_unit`.
-    """
-    if raw.startswith((b"\xff\xfe", b"\xfe\xff")):
-        return raw.decode("utf-16")
-    if raw.startswith(b"\xef\xbb\xbf"):
-        raw = raw[3:]
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        pass
-    lines = []
-    for line in raw.split(b"\n"):
-        try:
-            lines.append(line.decode("utf-8"))
-        except UnicodeDecodeError:
-            try:
-                lines.append(line.decode("cp1252"))
-            except UnicodeDecodeError:
-                lines.append(line.decode("latin-1"))
-    return "\n".join(lines)
-
-
-_UNIT_WORDS = {
-    "micron": "um", "microns": "um", "micrometer": "um", "micrometers": "um", "micrometre": "um",
-    "micrometres": "um", "mum": "um", "degc": "degC", "deg c": "degC", "deg_c": "degC", "celsius": "degC",
-    "°c": "degC", "ºc": "degC", "˚c": "degC", "c°": "degC", "ohm": "Ohm", "ohms": "Ohm", "kohm": "kOhm",
-    "mohm": "mOhm", "sec": "s", "secs": "s", "second": "s", "seconds": "s", "volt": "V", "volts": "V",
-    "amp": "A", "amps": "A", "ampere": "A", "newton": "N", "newtons": "N", "hz": "Hz", "khz": "kHz",
-}
+# -- names and units ------------------------------------------------------------------------
 
 
 def _example_unit(channel: str) -> str:
@@ -143,27 +99,6 @@ def check_run_name(name: str, where: str = "--run") -> str:
     return name
 
 
-def normalize_unit(unit: str) -> str:
-    """One spelling per unit: µm, μm, um, micron -> um; °C, deg C -> degC; Ω, ohm -> Ohm; µs -> us.
-
-    Repairs UTF-8 text that was decoded as Latin-1 on the way ("Âµm", "Â°C", "Î©").
-    """
-    text = unit.strip()
-    if any(marker in text for marker in ("Â", "Ã", "Î", "Ï")):
-        for codec in ("cp1252", "latin-1"):
-            try:
-                text = text.encode(codec).decode("utf-8")
-                break
-            except (UnicodeEncodeError, UnicodeDecodeError):
-                continue
-    text = unicodedata.normalize("NFKC", text)  # micro sign -> Greek mu, ohm sign -> Greek omega
-    word = _UNIT_WORDS.get(text.lower())
-    if word is not None:
-        return word
-    text = text.replace("μ", "u").replace("Ω", "Ohm").replace("°C", "degC").replace("ºC", "degC")
-    return text.replace("°", "deg").replace("º", "deg")
-
-
 # -- mapping ---------------------------------------------------------------------------------
 
 
@@ -172,7 +107,7 @@ def parse_target(value: str, where: str = "--map") -> tuple[str, str | None]:
     if value.strip() == DROP:
         return DROP, None
     m = _TARGET_RE.fullmatch(value)
-    if not m or not _CHANNEL_RE.fullmatch(m.group(1)):
+    if not m or not CHANNEL_RE.fullmatch(m.group(1)):
         raise DataError(
             f"{value!r} is not a channel name (expected NAME or NAME[unit], NAME of letters, digits, _ . + -)",
             where=where,
@@ -229,206 +164,6 @@ def _read_bytes(path: Path, where: str) -> bytes:
         raise DataError(f"cannot read ({exc.strerror or exc.__class__.__name__})", where=where) from exc
 
 
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _sniff_delimiter(line: str) -> str:
-    counts = {d: line.count(d) for d in (",", ";", "\t")}
-    best = max(counts, key=lambda d: counts[d])
-    return best if counts[best] > counts[","] else ","
-
-
-def _csv_columns(raw: bytes, where: str) -> tuple[list[_Column], list[int], bool]:
-    """Split a delimited text file into columns of text cells; returns (columns, line numbers, has header)."""
-    text = decode_text(raw)
-    lines = text.splitlines()
-    first = next((ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")), None)
-    if first is None:
-        raise DataError("no data (the file is empty)", where=where)
-    reader = csv.reader(io.StringIO(text), delimiter=_sniff_delimiter(first))
-    rows: list[list[str]] = []
-    line_numbers: list[int] = []
-    for row in reader:
-        if all(not c.strip() for c in row) or row[0].lstrip().startswith("#"):
-            continue  # blank lines and # comments
-        rows.append([c.strip() for c in row])
-        line_numbers.append(reader.line_num)
-    header_cells = rows[0]
-    has_header = not all(c == "" or _is_number(c) for c in header_cells)
-    width = len(header_cells)
-    header_line = line_numbers[0]
-    if has_header:
-        rows, line_numbers = rows[1:], line_numbers[1:]
-    for row, ln in zip(rows, line_numbers):
-        if len(row) != width:
-            what = f"the header (line {header_line})" if has_header else "the first row"
-            raise DataError(f"line {ln}: {len(row)} cells, expected {width} as in {what}", where=where)
-    if not rows:
-        raise DataError("no data rows", where=where)
-
-    columns: list[_Column] = []
-    for j in range(width):
-        cells = [row[j] for row in rows]
-        if has_header:
-            m = _HEADER_RE.fullmatch(header_cells[j])
-            assert m is not None  # the pattern matches any text
-            raw_name, unit = m.group(1), m.group(2) if m.group(2) is not None else m.group(3)
-            unit = normalize_unit(unit) if unit is not None else None
-            name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", raw_name).strip("_") or None
-            if name is not None and not _CHANNEL_RE.fullmatch(name):
-                name = f"c_{name}"
-            key = raw_name if raw_name else str(j)
-            label = f"{raw_name!r}" if raw_name else f"{j}"
-            aliases = tuple({header_cells[j], str(j)} - {key})
-            columns.append(_Column(key, label, name, unit, cells=cells, aliases=aliases))
-        else:
-            columns.append(_Column(str(j), str(j), None, None, cells=cells))
-    return columns, line_numbers, has_header
-
-
-def _parse_cells(col: _Column, target: str, line_numbers: list[int], where: str) -> np.ndarray:
-    """Convert a CSV column's text cells to float64, naming line, column and value on failure."""
-    assert col.cells is not None
-    label = col.label if target == col.key else f"{col.label} (mapped to {target!r})"
-    try:
-        values = np.array(col.cells, dtype=np.float64)
-    except ValueError:
-        values = None
-    if values is None or not np.all(np.isfinite(values)):
-        for cell, ln in zip(col.cells, line_numbers):
-            if cell == "":
-                raise DataError(f"line {ln}, column {label}: empty cell, expected a number", where=where)
-            try:
-                number = float(cell)
-            except ValueError:
-                raise DataError(f"line {ln}, column {label}: {cell!r} is not a number", where=where) from None
-            if not np.isfinite(number):
-                raise DataError(f"line {ln}, column {label}: {cell!r} is not a finite number", where=where)
-    assert values is not None
-    return values
-
-
-def _display(name: str) -> str:
-    """A dSPACE block name for messages: control characters (a lost 'å') shown as '?'."""
-    return "".join("?" if unicodedata.category(ch).startswith("C") else ch for ch in name)
-
-
-def _fold(name: str) -> str:
-    """Compare names ignoring case and non-ASCII letters, which dSPACE exports often mangle to '\\x1a'."""
-    name = unicodedata.normalize("NFC", name).casefold()
-    return re.sub(r"(?:[^\x20-\x7e]|\?)+", "?", name)
-
-
-def _dspace_names(full_name: str) -> list[str]:
-    """Path components of ``"Model Root"/"Måling"/"In1"`` without quotes: ['Model Root', 'Måling', 'In1']."""
-    return [part.strip().strip('"').strip() for part in str(full_name).split("/") if part.strip()]
-
-
-def _as_1d(value: Any) -> np.ndarray | None:
-    """A real numeric 1-D (or 1xN) array as float64, else None."""
-    if not isinstance(value, np.ndarray) or value.dtype.kind not in "iufb":
-        return None
-    array = np.squeeze(value)
-    return array.astype(np.float64) if array.ndim == 1 else None
-
-
-def _mat_columns(raw: bytes, where: str) -> tuple[list[_Column], str, dict[str, Any]]:
-    """Columns of a .mat file; returns (columns, format name, extra excitation info)."""
-    import scipy.io  # imported late: scipy.io is slow to import and only needed here
-
-    try:
-        contents = scipy.io.loadmat(io.BytesIO(raw), squeeze_me=True, struct_as_record=False)
-    except NotImplementedError as exc:  # v7.3 files are HDF5
-        raise DataError(f"MATLAB v7.3 (HDF5) files are not supported; save with -v7 ({exc})", where=where) from exc
-    except Exception as exc:  # scipy raises ValueError, TypeError, MatReadError... for a corrupt file
-        raise DataError(f"not a readable MATLAB .mat file ({exc})", where=where) from exc
-    variables = {k: v for k, v in contents.items() if not k.startswith("__")}
-    captures = {
-        k: v
-        for k, v in variables.items()
-        if hasattr(v, "_fieldnames") and {"X", "Y"} <= set(v._fieldnames)
-    }
-    if len(captures) > 1:
-        names = ", ".join(captures)
-        raise DataError(f"{len(captures)} dSPACE captures ({names}); one per file is supported", where=where)
-    if captures:
-        return _dspace_columns(*next(iter(captures.items())), where=where)
-    columns = []
-    for name, value in variables.items():
-        array = _as_1d(value)
-        if array is not None:
-            label = f"variable {name!r}"
-            ok = _CHANNEL_RE.fullmatch(name) is not None
-            columns.append(_Column(name, label, name if ok else None, None, values=array))
-    return columns, "mat", {}
-
-
-def _dspace_columns(var: str, capture: Any, where: str) -> tuple[list[_Column], str, dict[str, Any]]:
-    x = capture.X
-    if isinstance(x, np.ndarray):
-        if x.size != 1:
-            raise DataError(f"capture {var!r} has {x.size} time bases X; one is supported", where=where)
-        x = x.item()
-    time = _as_1d(getattr(x, "Data", None))
-    if time is None:
-        raise DataError(f"capture {var!r}: X.Data is not a numeric vector", where=where)
-    columns = [_Column("X", "X.Data", "time", "s", values=time)]
-    ys = capture.Y if isinstance(capture.Y, np.ndarray) else np.array([capture.Y], dtype=object)
-    for i, y in enumerate(np.atleast_1d(ys), start=1):
-        parts = _dspace_names(getattr(y, "Name", ""))
-        block = parts[-2] if len(parts) >= 3 else (parts[-1] if parts else "")
-        label = f"Y({i}) {_display(block)!r}" if block else f"Y({i})"
-        data = _as_1d(getattr(y, "Data", None))
-        if data is None:
-            raise DataError(f"capture {var!r}: Y({i}).Data is not a numeric vector", where=where)
-        unit = getattr(y, "Unit", "")
-        unit = normalize_unit(unit) if isinstance(unit, str) and unit.strip() else None
-        # Addressable by any trailing path (Måling/In1, In1) or the block name alone.
-        trailing = {"/".join(parts[k:]) for k in range(len(parts))}
-        without_port = {"/".join(parts[k:-1]) for k in range(len(parts) - 1)}
-        aliases = tuple(trailing | without_port)
-        columns.append(_Column(f"Y({i})", label, None, unit, values=data, aliases=aliases))
-    info: dict[str, Any] = {"capture": var}
-    date = getattr(getattr(capture, "Capture", None), "DateTime", None)
-    if isinstance(date, str) and date:
-        info["captured"] = date
-    return columns, "dspace-mat", info
-
-
-def _resolve(columns: list[_Column], key: str, where: str, listing: str) -> _Column:
-    """The column a mapping key addresses: by key, then alias (case- and umlaut-insensitive), then index."""
-    exact = [c for c in columns if key == c.key or key in c.aliases]
-    if len(exact) == 1:
-        return exact[0]
-    folded = [c for c in columns if _fold(key) in {_fold(a) for a in (c.key, *c.aliases)}]
-    if len(folded) == 1:
-        return folded[0]
-    if len(folded) > 1:
-        names = ", ".join(c.key for c in folded)
-        raise DataError(f"--map key {key!r} matches several columns ({names}); use one of those", where=where)
-    m = _Y_INDEX_RE.fullmatch(key)
-    if m and any(c.key.startswith("Y(") for c in columns):
-        n = sum(c.key.startswith("Y(") for c in columns)
-        raise DataError(f"--map key {key!r}: the capture has only Y(1)..Y({n})", where=where)
-    raise DataError(f"--map key {key!r} matches no column (columns: {listing})", where=where)
-
-
-def _listing(columns: list[_Column], has_header: bool = True) -> str:
-    parts = []
-    for c in columns:
-        if c.cells is not None and not has_header:
-            first = c.cells[0] if c.cells else ""
-            parts.append(f"{c.key} ({first or 'empty'})")
-        else:
-            parts.append(c.label.replace("variable ", ""))
-    return ", ".join(parts) or "none"
-
-
 def _sample_rate(time: np.ndarray, where: str) -> float:
     """Sample rate in Hz from a strictly increasing time vector in s.
 
@@ -454,7 +189,7 @@ class _Channels:
 
 
 def _pick(
-    columns: list[_Column],
+    columns: list[SourceColumn],
     mapping: dict[str, str],
     fmt: str,
     line_numbers: list[int],
@@ -465,7 +200,7 @@ def _pick(
     """Apply the mapping, parse the chosen columns and give them units (time converted to s)."""
     targets: dict[int, tuple[str, str | None]] = {}  # id(column) -> (channel, unit override)
     for key, value in mapping.items():
-        col = _resolve(columns, key, where, listing)
+        col = resolve_column(columns, key, where, listing)
         if id(col) in targets:
             raise DataError(f"--map: column {col.label} is mapped twice", where=where)
         targets[id(col)] = parse_target(value, f"--map {key}={value}")
@@ -488,7 +223,7 @@ def _pick(
             continue  # e.g. a pandas index column written without values
         if name in out.data:
             raise DataError(f"two columns give channel {name!r}: {out.sources[name]} and {col.label}", where=where)
-        values = col.values if col.values is not None else _parse_cells(col, name, line_numbers, where)
+        values = col.values if col.values is not None else parse_cells(col, name, line_numbers, where)
         if not np.all(np.isfinite(values)):  # only .mat data get here: CSV cells were checked one by one
             bad = int(np.flatnonzero(~np.isfinite(values))[0])
             raise DataError(f"{col.label} ({name}): {values[bad]} at element {bad + 1}, expected a finite number",
@@ -553,11 +288,11 @@ def load_source(
     line_numbers: list[int] = []
     has_header = True
     if path.suffix.lower() in MAT_SUFFIXES:
-        columns, fmt, info = _mat_columns(raw, where)
+        columns, fmt, info = mat_columns(raw, where)
     else:
-        columns, line_numbers, has_header = _csv_columns(raw, where)
+        columns, line_numbers, has_header = csv_columns(raw, where)
         fmt, info = "csv", {}
-    listing = _listing(columns, has_header)
+    listing = column_listing(columns, has_header)
     ch = _pick(columns, dict(mapping or {}), fmt, line_numbers, listing, path, where)
 
     for required in REQUIRED:
