@@ -125,6 +125,7 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
     if other_base is not None:
         cands.append(other_base)
     rank(cands)
+    base.notes.extend(n for n in plan.notes if n not in base.notes)  # what the training rows cannot identify
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
 
 

@@ -156,7 +156,8 @@ def _time_percentile(f: np.ndarray, q: float) -> float:
 
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
-    over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), their range (Hz), the longest hold (s), the number of steps and
+    over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), the
+    half cycles spanning LOOP_MIN_SPAN of the input span (``loops``), their range (Hz), the longest hold (s), the number of steps and
     of reversals, and the highest frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
     us = [u for u in inputs if u.size]
     if span is None:
@@ -175,8 +176,9 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     # noisy stretch do not make a spread; but a few full loops at a second rate are a second rate
     # however short they are (decision 0040), so counted in loops too
     spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
-    spread = max(spread, loop_spread(f, np.concatenate(amplitudes) if amplitudes else np.zeros(0), span))
-    return {"frequency_spread": spread, "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+    amplitude = np.concatenate(amplitudes) if amplitudes else np.zeros(0)
+    spread = max(spread, loop_spread(f, amplitude, span))
+    return {"frequency_spread": spread, "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
             "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.input_motion import excitation_summary
+from hilbench.diagnosis.input_motion import LOOP_HALF_CYCLES, LOOP_MIN_SPAN, excitation_summary
 from hilbench.diagnosis.rate_calibration import RatePlan, rate_plan
 from hilbench.identify.fitting import FitResult
 from hilbench.identify.statistics import difference_noise_std
@@ -75,6 +75,7 @@ class Testability:
     untestable: list[dict[str, str]]
     plan: RatePlan | None = None  # for the effects in ``calibrated``
     calibrated: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what the training rows cannot identify, for the user
 
 
 @dataclass
@@ -201,6 +202,18 @@ def _verdict(effect: E.Effect, name: str, ctx: DataContext) -> Verdict:
     return CALIBRATE if calibrate else None
 
 
+def _few_training_loops(ctx: DataContext) -> str | None:
+    """A note when a base with memory trains on fewer than two full loops while the other rows draw
+    more: its loops are identified from the training rows, so the validation error then says more
+    about the training data than about a missing effect (a training run that only steps and holds)."""
+    k = LOOP_HALF_CYCLES
+    if ctx.base == "linear" or ctx.ex_train["loops"] >= k or ctx.ex["loops"] < ctx.ex_train["loops"] + k:
+        return None
+    return (f"the training rows draw {ctx.ex_train['loops']} half cycles over {100 * LOOP_MIN_SPAN:g} % of the input span "
+            f"(all rows {ctx.ex['loops']}): the base {ctx.base!r} learns its loops from them, so its validation "
+            "error reflects the training data more than a missing effect; train on a run with loops (--train)")
+
+
 def testable(spec: str, result: FitResult) -> Testability:
     """Effects to try (not in ``spec``) and the untestable ones with the reason."""
     parts = split_spec(spec)
@@ -211,6 +224,9 @@ def testable(spec: str, result: FitResult) -> Testability:
     if not ctx.broadband_train and ctx.broadband:
         ctx.plan, ctx.no_plan = rate_plan(result)
     out = Testability([], [], ctx.plan)
+    note = _few_training_loops(ctx)
+    if note:
+        out.notes.append(note)
     channels = None
     for r in result.runs:
         if len(r.data):

@@ -473,3 +473,28 @@ def test_cli_diagnose_bad_input_one_line(tmp_path):
         assert len(lines) == 1 and all(n in lines[0] for n in needles), (args, lines)
     r = runner.invoke(app, ["diagnose", str(good), "--model", "pi", "--add", "creeep"])
     assert r.exit_code == 2 and "creeep" in r.stderr and "creep" in r.stderr.replace("creeep", "")
+
+
+def test_training_without_loops_is_noted(folder):
+    """A run that only steps and holds trains a hysteresis base on no loop: the diagnosis says so
+    (randomized seeds 1116 and 1147: training was one power-on step, validation drew 7 and 39 loops)."""
+    from hilbench.diagnosis.testability import testable
+    from hilbench.identify.fitting import fit
+
+    rig = folder / "steps.toml"
+    rig.write_text(textwrap.dedent(MINIMAL_RIG), encoding="utf-8")
+    plant = Plant.from_rig(load_rig(rig))
+    out = folder / "steps.h5"
+    writer = RecordingWriter(out)
+    t = np.arange(3000) / FS
+    for label, u in {"step": np.where(t < 0.5, 0.0, 4.0), "sine": 4.0 * np.sin(2 * np.pi * 2.0 * t),
+                     "triangle": 4.0 * (2 / np.pi) * np.arcsin(np.sin(2 * np.pi * 1.0 * t))}.items():
+        plant.reset()
+        writer.write_run(label, {"time": t, "input": u, "output": plant.simulate(u).output},
+                         {"time": "s", "input": "V", "output": "um"}, experiment="t", excitation="{}",
+                         sample_rate_hz=FS)
+    stepped = fit(out, "pi", train=["step"], test=["sine"])
+    notes = testable("pi", stepped).notes
+    assert len(notes) == 1 and "the training rows draw 0 half cycles" in notes[0], notes
+    assert not testable("pi", fit(out, "pi", train=["triangle"], test=["sine"])).notes
+    assert not testable("linear", fit(out, "linear", train=["step"], test=["sine"])).notes  # no loops to learn
