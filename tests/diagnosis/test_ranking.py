@@ -160,3 +160,28 @@ def test_a_pair_ranks_behind_its_member_that_is_significant_alone():
     cands = [sat, asym, pair]
     rank(cands)
     assert cands[0] is pair
+
+
+def test_a_pair_ranks_behind_a_single_it_does_not_beat_by_the_margin():
+    """Two effects, neither significant alone, that validate no better than one significant single
+    are not the better explanation (randomized case 1281: a saturation + rate-dependence pair at
+    26.4 % above creep, significant alone, at 26.3 %). A pair that beats the single by more than
+    MIN_GAIN keeps its rank."""
+    rng = np.random.default_rng(5)
+    creep = _candidate("creep", 0.263, 6, rng.normal(0.0, 1.0, N))
+    # the pair trains 2.5x better: parsimony alone would not pass over it (decision 0030)
+    pair = _candidate("saturation+rate-dependence", 0.264, 15, 0.995 * creep.fitted.runs[0].simulated, train_rmse=0.4)
+    pair.evidence["pair"] = ["saturation", "rate-dependence"]
+    cands = [pair, creep]
+    rank(cands)
+    assert [c.effect for c in cands] == ["creep", "saturation+rate-dependence"]
+    # nor by having fewer parameters than the single (a creep bank has many): it is two effects
+    many = _candidate("creep", 0.263, 24, creep.fitted.runs[0].simulated)
+    cands = [pair, many]
+    rank(cands)
+    assert [c.effect for c in cands] == ["creep", "saturation+rate-dependence"]
+    better = _candidate("saturation+rate-dependence", 0.40, 15, (1.0 - T.MIN_GAIN - 0.05) * creep.fitted.runs[0].simulated)
+    better.evidence["pair"] = ["saturation", "rate-dependence"]
+    cands = [better, creep]
+    rank(cands)
+    assert cands[0] is better
