@@ -40,6 +40,24 @@ def frequencies_text(ex: dict[str, Any]) -> str:
             if ex["frequencies_hz"] else "no input reversals")
 
 
+def channel_reach(result: FitResult, channel: str) -> float:
+    """How many times further a recorded channel moves on the validation rows than on the training
+    rows: the rms deviation from the training rows' mean on each (1 when the channel does not move
+    beyond its noise in training, AUX_MIN_VARIATION: a coefficient learned from noise has no reach)."""
+    train = [r.data.aux[channel][r.train] for r in result.runs if channel in r.data.aux and r.train.any()]
+    validation = [r.data.aux[channel][r.validation] for r in result.runs if channel in r.data.aux and r.validation.any()]
+    if not train or not validation or aux_variation(train) < T.AUX_MIN_VARIATION:
+        return 1.0
+    a_t, a_v = np.concatenate(train), np.concatenate(validation)
+    a_t, a_v = a_t[np.isfinite(a_t)], a_v[np.isfinite(a_v)]
+    if not a_t.size or not a_v.size:
+        return 1.0
+    centre = float(np.mean(a_t))
+    spread_t = float(np.sqrt(np.mean((a_t - centre) ** 2)))
+    spread_v = float(np.sqrt(np.mean((a_v - centre) ** 2)))
+    return max(1.0, spread_v / spread_t) if spread_t > 0 else 1.0
+
+
 def aux_variation(runs: list[np.ndarray]) -> float:
     """How far an auxiliary channel moves beyond its noise: the range of its moving average (1 % of
     each run) over its sample-to-sample noise std. Pure noise gives well under 1 (the average

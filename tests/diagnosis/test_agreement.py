@@ -81,3 +81,39 @@ def test_validation_rows_that_hold_less_of_the_effect_still_confirm_it():
     ev = {"train_rmse": list(train), "validation_rmse": list(validation), "change_explained": -0.9, "checks": {}}
     reason = check_reason("train_and_validation_agree", ev, "um")
     assert reason["measured"]["validation_change_explained"] == -0.9 and "-0.9x is error removed" in reason["text"]
+
+
+def test_a_channel_that_reaches_further_on_validation_needs_less_training_gain():
+    # seed 1394: a temperature gain; training ramps 20.5-25.3 degC, validation 28-43 degC. Training
+    # rmse fell 3.4 % (its error is mostly noise there), validation 72 %: what the channel shows
+    train, validation = (0.2283, 0.2204), (2.414, 0.6684)
+    assert not gains_agree(train, validation)
+    assert gains_agree(train, validation, reach=9.0)
+    assert not gains_agree(train, validation, reach=2.0)  # a little further does not make up for it
+    assert not gains_agree((1.0, 1.01), (1.0, 0.5), reach=100.0)  # training must still improve
+    ev = {"train_rmse": list(train), "validation_rmse": list(validation), "channel_reach": 2.0}
+    assert "the channel reaches 2x further on validation" in check_reason("train_and_validation_agree", ev)["text"]
+
+
+def test_channel_reach_from_the_training_and_validation_rows():
+    from types import SimpleNamespace
+
+    from hilbench.diagnosis.testability import channel_reach
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    train = np.arange(n) < n // 2
+
+    def result(temperature: np.ndarray) -> SimpleNamespace:
+        run = SimpleNamespace(data=SimpleNamespace(aux={"temperature": temperature}), train=train, validation=~train)
+        return SimpleNamespace(runs=[run])
+
+    ramp = np.concatenate([np.linspace(20.0, 25.0, n // 2), np.linspace(28.0, 43.0, n // 2)])
+    reach = channel_reach(result(ramp + rng.normal(0, 0.01, n)), "temperature")
+    assert 8.0 < reach < 12.0, reach  # rms deviation from 22.5 degC: ~13 degC against 1.44
+    same = np.concatenate([np.linspace(20.0, 25.0, n // 2), np.linspace(25.0, 20.0, n // 2)])
+    assert channel_reach(result(same), "temperature") == pytest.approx(1.0, abs=0.01)
+    # a channel that does not move in training (noise only) reaches nowhere: no coefficient was learned
+    flat = np.concatenate([np.full(n // 2, 22.0), np.linspace(22.0, 40.0, n // 2)]) + rng.normal(0, 0.01, n)
+    assert channel_reach(result(flat), "temperature") == 1.0
+    assert channel_reach(result(ramp), "load") == 1.0  # no such channel
