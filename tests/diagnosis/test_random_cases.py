@@ -21,11 +21,7 @@ import diagnosis_cases as DC
 from hilbench.diagnosis.diagnose import diagnose
 
 
-def _xfail(reason: str):
-    return pytest.mark.xfail(strict=True, reason=f"issue 'Diagnosis that holds on data it was never tuned to': {reason}")
-
-
-#: seed -> (hidden effect, form) as drawn; the marks say what fails on today's main
+#: seed -> (hidden effect, form) as drawn
 CASES = [
     pytest.param(22, "asymmetry", "even-2", id="22-asymmetry-even2-pi"),
     # the knee cuts only the largest excursions: validation rmse drops 56 %, but the gain sits in few of
@@ -99,10 +95,10 @@ CASES = [
     # nothing was significant; the knee on the drive (saturation(form=hammerstein), decision 0039)
     # is chosen and validates lower
     pytest.param(805, "saturation", "input-knee", id="805-saturation-input-knee-pmpi"),
-    # a warm-up ramp in each run (train and test runs on their own trajectories): the channel model
-    # buys 10 % on validation and training and validation disagree
-    pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1",
-                 marks=_xfail("a temperature gain/strain learned on one run does not carry to the next")),
+    # a warm-up ramp in each run (train and test runs on their own trajectories): the test run takes
+    # the temperature further, so the channel model buys 18 % in training and 77 % on validation
+    # (0.168 -> 0.038 um); refused as chance extrapolation until the channel's reach counted (decision 0042)
+    pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1"),
 ]
 
 
