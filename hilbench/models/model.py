@@ -172,13 +172,17 @@ class Model:
         return [c.new_state() for c in self.components]
 
     def static_columns(
-        self, run: RunData, states: list[dict[str, Any]] | None = None, u_before: float | None = None
+        self, run: RunData, states: list[dict[str, Any]] | None = None, u_before: float | None = None,
+        until: Component | None = None,
     ) -> list[Columns]:
-        """The static regressor blocks of one run (before dynamics); ``states`` carry memory in/out."""
+        """The static regressor blocks of one run (before dynamics); ``states`` carry memory in/out.
+        ``until``: only the blocks of the components before that one."""
         states = self.new_states() if states is None else states
         s = self._signals(run, self._delayed(run), u_before)
         blocks: list[Columns] = []
         for c, state in zip(self.components, states):
+            if c is until:
+                break
             block = c.columns(s, state, blocks)
             if block is not None:
                 blocks.append(block)

@@ -224,8 +224,8 @@ def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]
         elif kind == "saturation" and _opt(e, "form") == "hammerstein":
             shape += 2  # a knee on the drive: no columns of its own
         elif kind == "saturation":
-            k = 3 + (hyst if _opt(e, "form") in ("output", "knee") else 0)
-            cols, hyst, shape = cols + k, hyst + k, shape + (2 if _opt(e, "form") == "knee" else 1)
+            k = 1 if _opt(e, "form") == "wiener" else 3 + (hyst if _opt(e, "form") in ("output", "knee") else 0)
+            cols, hyst, shape = cols + k, hyst + k, shape + (2 if _opt(e, "form") in ("knee", "wiener") else 1)
         elif kind == "creep" and _opt(e, "form") == "bank":
             from hilbench.models.effect_components import CREEP_BANK_MOST
 

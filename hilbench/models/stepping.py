@@ -49,7 +49,7 @@ I_DZ = 9  # P offset of those
 I_DSHAPE = 10  # Duhem shape: 1 Gompertz, 2 modified tanh, 3 dead-zone operators
 I_OFF = 11  # column index of the base's offset column
 I_ASYM = 12  # asymmetry order (0 = none)
-I_SAT = 13  # 0 none, 1 input form, 2 output form
+I_SAT = 13  # 0 none, 1 input form, 2 output form (tanh), 3 knee, 4 wiener (knee of the reference h)
 I_NBA = 14  # hysteresis columns before saturation (base + asymmetry)
 I_H = 15  # all hysteresis columns (base + asymmetry + saturation)
 I_NKPRE = 16  # of the columns before saturation, those that are not the offset
@@ -87,7 +87,8 @@ I_NX = 47  # length of X
 I_RATE_K = 48  # P offset: rate-dependence gain coefficients (damping: g; frequency: k_1..k_order)
 I_AUX_G = 49  # P offset: aux channels' gain coefficients g
 I_SHAPE_IN = 50  # 1 = the drive is shaped by a knee before everything (saturation(form=hammerstein))
-N_I = 51
+I_SAT_REF = 51  # P offset: reference weights of the non-offset columns before saturation (form=wiener)
+N_I = 52
 
 # -- scalars: indices into P --------------------------------------------------------------------------
 P_FS = 0
@@ -111,7 +112,8 @@ P_GAIN_FLOOR = 17  # floor of the loop gains (effect_components.GAIN_FLOOR)
 P_SHAPE_S = 18  # the drive's knee (form=hammerstein), normalised input
 P_SHAPE_P = 19  # its sharpness
 P_SHAPE_NORM = 20  # k(1 / s): the shaped drive is k(v / s) / k(1 / s)
-N_P = 21
+P_SAT_HSCALE = 21  # the reference's largest |h| on training (form=wiener), um
+N_P = 22
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
 X_STARTED = 0
@@ -234,21 +236,32 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     # -- saturation --------------------------------------------------------------------------------
     sat = I[I_SAT]
     if sat != 0:
-        av = abs(v)
-        sv = _sgn(v)
-        X[c] = math.tanh(v / P[P_SAT_S])
-        X[c + 1] = sv * math.sqrt(av)
-        X[c + 2] = sv * av ** (1.0 / 3.0)
-        c += 3
-        if sat >= 2:  # output forms: copies of the hysteresis columns times phi(v/s) - 1
+        if sat != 4:  # the memoryless terms (every form but wiener)
+            av = abs(v)
+            sv = _sgn(v)
+            X[c] = math.tanh(v / P[P_SAT_S])
+            X[c + 1] = sv * math.sqrt(av)
+            X[c + 2] = sv * av ** (1.0 / 3.0)
+            c += 3
+        if sat >= 2:  # output forms: copies of the hysteresis columns times phi(v/s) - 1 (wiener: one column)
             xs = v / P[P_SAT_S]
-            if sat == 3:  # knee of sharpness p
+            h_ref = 0.0
+            if sat == 4:  # wiener: the knee of the reference hysteresis output h_ref / (s h_scale)
+                ref = I[I_SAT_REF]
+                for i in range(I[I_NKPRE]):
+                    h_ref += P[ref + i] * X[xk + i]
+                xs = h_ref / (P[P_SAT_S] * P[P_SAT_HSCALE])
+            if sat >= 3:  # knee of sharpness p
                 phi = (1.0 + abs(xs) ** P[P_SAT_P]) ** (-1.0 / P[P_SAT_P])
             else:
                 phi = math.tanh(xs) / xs if abs(xs) > 1e-8 else 1.0
-            for i in range(I[I_NKPRE]):
-                X[c] = X[xk + i] * (phi - 1.0)
+            if sat == 4:  # one column: h_ref (phi - 1)
+                X[c] = h_ref * (phi - 1.0)
                 c += 1
+            else:
+                for i in range(I[I_NKPRE]):
+                    X[c] = X[xk + i] * (phi - 1.0)
+                    c += 1
         for i in range(I[I_NBA], I[I_H]):
             X[xk + j] = X[row + i]
             j += 1
@@ -490,14 +503,20 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
         I[I_SHAPE_IN] = 1
         f.P[P_SHAPE_S], f.P[P_SHAPE_P] = s_knee, p_knee
         f.P[P_SHAPE_NORM] = (1.0 / s_knee) * (1.0 + (1.0 / s_knee) ** p_knee) ** (-1.0 / p_knee)
-    elif sat is not None:
+    elif sat is not None and not (sat.needs_reference and "reference_names" not in sat.constants):
+        # (form=wiener before its reference is set adds no columns, in the block path as here)
         form = str(sat.options.get("form", "output"))
-        output_form = form in ("output", "knee")
-        I[I_SAT] = {"output": 2, "knee": 3}.get(form, 1)
+        output_form = form in ("output", "knee", "wiener")
+        I[I_SAT] = {"output": 2, "knee": 3, "wiener": 4}.get(form, 1)
         f.P[P_SAT_S] = sat.param("s")
-        if form == "knee":
+        if form in ("knee", "wiener"):
             f.P[P_SAT_P] = sat.param("p")
-        n_sat = 3 + (nba - 1 if output_form else 0)
+        if form == "wiener":
+            ref = dict(zip(sat.constants["reference_names"], sat.constants["reference_weights"]))
+            pre = [name for i, name in enumerate(model.weight_names[:nba]) if i != off]
+            I[I_SAT_REF] = f.put(np.array([ref.get(name, 0.0) for name in pre], float))
+            f.P[P_SAT_HSCALE] = float(sat.constants["h_scale"])
+        n_sat = 1 if form == "wiener" else 3 + (nba - 1 if output_form else 0)
     H = nba + n_sat
     I[I_H] = H
     nk = H - 1

@@ -40,6 +40,10 @@ def with_random_weights(spec: str, run: RunData, seed: int = 1) -> Model:
             x = lo + (hi - lo) * rng.uniform(0.3, 0.7)
             p.value = float(np.exp(x) if p.log else x)
     model.finalize([run])
+    for effect in model.effects:
+        if getattr(effect, "needs_reference", False):  # saturation(form=wiener): a random reference
+            _, names, _, _ = model.design(run)
+            effect.set_reference({n: float(rng.uniform(0.5, 2.0)) for n in names}, 3.0)
     _, names, _, _ = model.design(run)
     model.weight_names = names
     model.weights = rng.normal(size=len(names))
@@ -67,6 +71,8 @@ EFFECT_SPECS = [
     "linear+asymmetry+saturation(form=input)+rate-dependence(form=damping)+delay",
     "pmpi+saturation(form=hammerstein)+creep(form=log-output)+rate-dependence(form=damping)+dynamics",
     "duhem-d+saturation(form=hammerstein)+asymmetry+delay", "bouc-wen+saturation(form=hammerstein)+temperature",
+    "pi1+saturation(form=wiener)", "pmpi+asymmetry+saturation(form=wiener)+creep(form=output)+rate-dependence(form=damping)+temperature+delay+dynamics",
+    "duhem-d+saturation(form=wiener)+creep(form=log-output)",
 ]
 
 
