@@ -71,7 +71,8 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     # the loop but cannot move where the operators turn (randomized seed 805: validation 32 %
     # worse with them)
     Effect("saturation", "loop flattening at large drive, on the input or on the hysteresis output", "saturation",
-           "saturation", forms=("saturation", "saturation(form=knee)", "saturation(form=hammerstein)"),
+           "saturation", forms=("saturation", "saturation(form=knee)", "saturation(form=hammerstein)",
+                                 "saturation(form=wiener)"),
            built_into=("fpmpi",), signature="odd-input", papers="000, 001"),
     # rate-dependence: velocity damping first (m and g searched, one weight); the frequency
     # polynomials of 003 (three gains searched, three weights) must fit training better and beat it

@@ -111,6 +111,11 @@ def effect_specs(spec: str, effect: str) -> list[str]:
         else [spec_with(spec, effect)]
 
 
+def free_parameters(model: Any) -> int:
+    """Weights plus searched shape parameters of a fitted model."""
+    return len(model.weights) + sum(1 for p in model.shape_params() if p.upper > p.lower)
+
+
 def inner_rmse(result: FitResult, held_back: list[np.ndarray]) -> float:
     """rmse on ``held_back`` rows (one mask per run) of an inner fit's free run."""
     parts = []
@@ -201,8 +206,13 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
     if choice in ("inner-split", "inner-split-both"):
         return fit(paths, choose_by_inner_split(paths, specs, kw, base.model, choice == "inner-split-both"), **kw)
     fits = [fit(paths, spec, **kw) for spec in specs]
-    # choose among the forms on training rows only, so the validation comparison stays fair
+    # choose among the forms on training rows only, so the validation comparison stays fair; forms
+    # that fit them equally well go to the one with the fewest free parameters (decision 0043)
     best = min(range(len(fits)), key=lambda k: fits[k].metrics["train"]["rmse"])
+    if choice == "train":
+        tied = [k for k in range(len(fits))
+                if fits[k].metrics["train"]["rmse"] <= (1.0 + T.FORM_TIE) * fits[best].metrics["train"]["rmse"]]
+        best = min(tied, key=lambda k: (free_parameters(fits[k].model), k))
     if choice == "inner-blocks" and best > 0:
         # a richer form must fit the training rows better and predict held-back blocks of them
         # better too (decision 0034)

@@ -117,3 +117,9 @@ PAIR_TRIGGER_GAIN = 0.5
 #: ... among the singles with the best gains (training or validation; one of each pair over MIN_GAIN in
 #: training): the top PAIR_MAX_MEMBERS (3 members, at most 3 pairs), so pairs cost at most three refits.
 PAIR_MAX_MEMBERS = 3
+
+#: Forms of an effect chosen on the training fit (saturation's) whose training rmse is within this
+#: fraction of the best fit the rows equally: the one with the fewest free parameters is chosen
+#: (decision 0043). Copies of every hysteresis column with their own weights trained 0.07 % better
+#: than the one-weight Wiener knee and validated 6x worse (randomized seed 969).
+FORM_TIE = 0.01

@@ -99,6 +99,11 @@ CASES = [
     # the temperature further, so the channel model buys 18 % in training and 77 % on validation
     # (0.168 -> 0.038 um); refused as chance extrapolation until the channel's reach counted (decision 0042)
     pytest.param(110, "temperature", "ramp", id="110-temperature-ramp-pi1"),
+    # an output knee on a one-sided PI (wide loops): the output forms flatten by the drive, trained
+    # at the noise with copies of every column and validated at 6x it, and an even polynomial ranked
+    # first; the knee of the model's own hysteresis output (saturation(form=wiener), decision 0043)
+    # fits training as well with 12 weights instead of 24 and validates at the noise
+    pytest.param(969, "saturation", "output-knee", id="969-saturation-output-knee-pi1"),
 ]
 
 
