@@ -37,6 +37,16 @@ def _knee_data(p: float, seed: int = 0) -> tuple[RunData, RunData]:
     return (RunData(10 * v[:cut], y[:cut], {}, FS), RunData(10 * v[cut:], y[cut:], {}, FS, chain=True))
 
 
+def _assert_steps_like_it_simulates(model: Model, run: RunData) -> None:
+    """The compiled step and the Python step give the block simulation's output."""
+    stepper = model.stepper(FS)
+    stepped = np.array([stepper.step(float(u)) for u in run.input])
+    assert stepper.compiled is not None, stepper.fallback_reason
+    np.testing.assert_allclose(stepped, model.simulate(run), atol=1e-9)
+    python = [stepper.step_python(float(u)) for u in run.input[:200]]
+    np.testing.assert_allclose(python, model.simulate(run)[:200], atol=1e-9)
+
+
 def _validation_rmse(spec: str, train: RunData, test: RunData) -> float:
     model = Model(spec)
     fit_model(model, [train], [np.ones(len(train), bool)])
@@ -93,12 +103,7 @@ def test_the_hammerstein_form_recovers_the_knee_and_steps_like_it_simulates():
     fit_model(model, [train], [np.ones(len(train), bool)])
     sat = model.effect("saturation")
     assert 0.45 < sat.param("s") < 0.8 and 2.5 < sat.param("p") < 6.5, (sat.param("s"), sat.param("p"))
-    stepper = model.stepper(FS)
-    stepped = np.array([stepper.step(float(u)) for u in train.input])
-    assert stepper.compiled is not None, stepper.fallback_reason
-    np.testing.assert_allclose(stepped, model.simulate(train), atol=1e-9)
-    python = [stepper.step_python(float(u)) for u in train.input[:200]]
-    np.testing.assert_allclose(python, model.simulate(train)[:200], atol=1e-9)
+    _assert_steps_like_it_simulates(model, train)
 
 
 def _one_sided_wiener_data(level_um: float, p: float, seed: int = 0) -> tuple[RunData, RunData, float]:
@@ -143,12 +148,7 @@ def test_the_wiener_form_recovers_the_knee_keeps_its_reference_and_steps_like_it
     # the reference reads every hysteresis column before the effect but the offset
     assert set(sat.constants["reference_names"]) == set(model.weight_names) - {"offset", "h_ref*(phi(h/s)-1)"}
     assert sat.constants["h_scale"] > 0
-    stepper = model.stepper(FS)
-    stepped = np.array([stepper.step(float(u)) for u in train.input])
-    assert stepper.compiled is not None, stepper.fallback_reason
-    np.testing.assert_allclose(stepped, model.simulate(train), atol=1e-9)
-    python = [stepper.step_python(float(u)) for u in train.input[:200]]
-    np.testing.assert_allclose(python, model.simulate(train)[:200], atol=1e-9)
+    _assert_steps_like_it_simulates(model, train)
     # the reference is part of the model: a saved and loaded model predicts the same
     loaded = Model.load(model.save(tmp_path / "wiener.json"))
     np.testing.assert_array_equal(loaded.simulate(test), model.simulate(test))
