@@ -118,8 +118,9 @@ PAIR_TRIGGER_GAIN = 0.5
 #: training): the top PAIR_MAX_MEMBERS (3 members, at most 3 pairs), so pairs cost at most three refits.
 PAIR_MAX_MEMBERS = 3
 
-#: Forms of an effect chosen on the training fit (saturation's) whose training rmse is within this
-#: fraction of the best fit the rows equally: the one with the fewest free parameters is chosen
-#: (decision 0043). Copies of every hysteresis column with their own weights trained 0.07 % better
-#: than the one-weight Wiener knee and validated 6x worse (randomized seed 969).
+#: Forms of an effect chosen on the training fit (saturation's) whose training rmse is above the
+#: best form's by less than this fraction of what the best form lowers it by (from the base's) fit
+#: the rows equally: the one with the fewest free parameters is chosen (decision 0043). Copies of
+#: every hysteresis column with their own weights trained 0.005 % of the gain better than the
+#: one-weight Wiener knee and validated 6x worse (randomized seed 969).
 FORM_TIE = 0.01
