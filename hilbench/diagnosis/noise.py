@@ -66,6 +66,18 @@ class NoiseFloor(float):
     def __reduce__(self) -> tuple[Any, ...]:
         return (NoiseFloor, (float(self), self.estimates))
 
+    def variance_uncertainty(self) -> float:
+        """How uncertain the floor's variance is, as a fraction of it: the spread of the sensor
+        estimates (differences, spectrum, holds), (largest / smallest)^2 - 1. Signal content only
+        inflates an estimate, so a wide spread says the floor is poorly pinned down (inf when fewer
+        than two estimates exist)."""
+        vals = [float(v) for k, v in self.estimates.items()
+                if (k.startswith("differences_") or k in ("spectrum", "holds"))
+                and isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+        if len(vals) < 2:
+            return math.inf
+        return (max(vals) / min(vals)) ** 2 - 1.0
+
 
 def residual_noise_floor(e: np.ndarray, run: np.ndarray) -> float:
     """The old estimate: noise std from sample-to-sample differences of the residual (MAD), output

@@ -77,6 +77,28 @@ def relative_gain(old: float, new: float) -> float:
     return 1.0 - new / old if old > 0 else 0.0
 
 
+def model_error_gain(old: float, new: float, noise: float = 0.0, uncertainty: float = 0.0) -> float:
+    """Relative gain of the model's error above the sensor's noise (rmse ``old`` -> ``new``, noise
+    std ``noise``, all output unit): the mean square removed, old^2 - new^2, over the mean square
+    above the noise, old^2 - noise^2, as a relative rms gain 1 - sqrt(1 - that fraction).
+
+    No model removes sensor noise, so rows whose error is mostly noise show a small relative rmse
+    gain whatever the model learned there (randomized seed 1518: a load effect removed 40 % of the
+    training's mean square above the noise, 6.6 % of its rmse). The denominator is at least
+    ``uncertainty`` x noise^2 (:meth:`hilbench.diagnosis.noise.NoiseFloor.variance_uncertainty`),
+    so rows at the floor, where the excess is not known, show no more than their change in mean
+    square. With no noise this is :func:`relative_gain`."""
+    if not old > 0:
+        return 0.0
+    if not math.isfinite(uncertainty):  # the floor is not known well enough to take out
+        return relative_gain(old, new)
+    excess = max(old * old - noise * noise, uncertainty * noise * noise)
+    if not excess > 0:
+        return relative_gain(old, new)
+    fraction = min((old * old - new * new) / excess, 1.0)
+    return 1.0 - math.sqrt(1.0 - fraction)
+
+
 def explained_power(old: float, new: float) -> float:
     """The mean square a refit explained: old rmse^2 - new rmse^2 (output unit^2)."""
     return old * old - new * new
@@ -95,7 +117,8 @@ def change_explained(e_old: np.ndarray, e_new: np.ndarray) -> float:
     return float(np.mean(e_old[ok] ** 2) - np.mean(e_new[ok] ** 2)) / change
 
 
-def gains_agree(first: Sequence[float], second: Sequence[float], carried: float = math.nan, reach: float = 1.0) -> bool:
+def gains_agree(first: Sequence[float], second: Sequence[float], carried: float = math.nan, reach: float = 1.0,
+                noise: float = 0.0, uncertainty: float = 0.0) -> bool:
     """Whether a gain learned on ``first`` (old, new rmse: training) holds on ``second`` (validation):
     the first improved, the second gain is not a small fraction of the first (AGREE_VALIDATION_OVER_TRAIN)
     in relative rmse or in explained mean square, or the refit's change on the second rows is mostly
@@ -125,9 +148,17 @@ def gains_agree(first: Sequence[float], second: Sequence[float], carried: float 
     Except by what a measured channel shows: an effect that follows a recorded channel acts in
     proportion to the channel's excursion, so where the validation rows take it ``reach`` times
     further than the training rows (:func:`hilbench.diagnosis.testability.channel_reach`) the
-    training gain needs only 1/``reach`` of the fraction. Decision 0042."""
+    training gain needs only 1/``reach`` of the fraction. Decision 0042.
+
+    And the converse compares what each set of rows can show: the gains of the model's error above
+    the sensor's noise (``noise``, its variance known to ``uncertainty``; :func:`model_error_gain`),
+    since training rows whose error is mostly noise cannot show a large relative gain. Decision 0044."""
     learned, gain = relative_gain(*first[:2]), relative_gain(*second[:2])
-    if not learned > 0 or learned < T.AGREE_TRAIN_OVER_VALIDATION * gain / max(reach, 1.0):
+    if not learned > 0:
+        return False
+    learned_model = model_error_gain(first[0], first[1], noise, uncertainty)
+    gain_model = model_error_gain(second[0], second[1], noise, uncertainty)
+    if learned_model < T.AGREE_TRAIN_OVER_VALIDATION * gain_model / max(reach, 1.0):
         return False
     powered = explained_power(*second[:2]) >= T.AGREE_VALIDATION_OVER_TRAIN * explained_power(*first[:2])
     towards = carried >= T.AGREE_CHANGE_EXPLAINED  # False for NaN
@@ -187,8 +218,13 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
             reach = float(ev.get("channel_reach", 1.0))
             fraction = f"{T.AGREE_TRAIN_OVER_VALIDATION / reach:.2g}x of it required (the channel reaches {reach:.2g}x " \
                        "further on validation)" if reach > 1.0 else f"{T.AGREE_TRAIN_OVER_VALIDATION:g}x of it required"
-            text = (f"{_change(first, learned)} against {_pct(gain)} on {second}, less than the "
-                    f"{fraction}: chance extrapolation")
+            model = ev.get("model_error_gains") or {}
+            if model and model.get("noise_variance_uncertainty") is not None:
+                text = (f"the {first} error above the sensor noise fell {_pct(model['first'])} against "
+                        f"{_pct(model['second'])} on {second}, less than the {fraction}: chance extrapolation")
+            else:
+                text = (f"{_change(first, learned)} against {_pct(gain)} on {second}, less than the "
+                        f"{fraction}: chance extrapolation")
         return {"check": key, "measured": measured, "required": required, "text": text}
     if key == "blocks_p_below_0.01":
         p = float(ev.get("p_value", math.nan))
@@ -295,7 +331,11 @@ def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, no
         reach = channel_reach(base, effect) if plan is None and effect not in E.EFFECTS else 1.0
         if reach > 1.0:
             extra["channel_reach"] = reach
-        checks[agree] = gains_agree(first, second, carried, reach)
+        uncertainty = noise.variance_uncertainty() if hasattr(noise, "variance_uncertainty") else math.inf
+        extra["model_error_gains"] = {"first": model_error_gain(first[0], first[1], noise, uncertainty),
+                                      "second": model_error_gain(second[0], second[1], noise, uncertainty),
+                                      "noise_variance_uncertainty": uncertainty if math.isfinite(uncertainty) else None}
+        checks[agree] = gains_agree(first, second, carried, reach, noise, uncertainty)
     checks["blocks_p_below_0.01"] = p < T.P_MAX
     checks["error_above_noise"] = rms(e_old) > T.NOISE_FACTOR * noise
     if plan is not None and plan.step is not None:

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.verdict import change_explained, check_reason, explained_power, gains_agree
+from hilbench.diagnosis.noise import NoiseFloor
+from hilbench.diagnosis.verdict import change_explained, check_reason, explained_power, gains_agree, model_error_gain
 
 
 def test_a_gain_diluted_on_validation_by_another_effect_agrees_in_explained_power():
@@ -117,3 +118,50 @@ def test_channel_reach_from_the_training_and_validation_rows():
     flat = np.concatenate([np.full(n // 2, 22.0), np.linspace(22.0, 40.0, n // 2)]) + rng.normal(0, 0.01, n)
     assert channel_reach(result(flat), "temperature") == 1.0
     assert channel_reach(result(ramp), "load") == 1.0  # no such channel
+
+
+def test_model_error_gain_takes_the_sensor_noise_out():
+    # no noise: the relative rmse gain
+    assert model_error_gain(1.0, 0.5) == pytest.approx(0.5)
+    # rmse 1.25 -> 1.0 over a 0.75 noise floor: the model error 1.0 -> ~0.66 (its rms above the noise)
+    assert model_error_gain(1.25, 1.0, 0.75, 0.05) == pytest.approx(1 - (1.0 - 0.5625) ** 0.5 / (1.5625 - 0.5625) ** 0.5)
+    # all of the excess removed (or more: the refit fit noise): at most 1
+    assert model_error_gain(1.25, 0.7, 0.75, 0.05) == pytest.approx(1.0)
+    assert model_error_gain(1.0, 1.1, 0.5, 0.05) < 0  # worse stays worse
+    # rows at (or under) the floor: the excess is not known; the floor's own uncertainty bounds it
+    at_floor = model_error_gain(0.4446, 0.4439, 0.4466, 0.086)
+    assert 0 < at_floor < 0.05
+    # a floor not known well enough (no spread of estimates): the plain relative gain
+    assert model_error_gain(1.25, 1.0, 0.75, float("inf")) == pytest.approx(0.2)
+
+
+def test_training_rows_mostly_noise_still_confirm_a_large_validation_gain():
+    # seed 1518: a placed weight on a load cell; training's rmse 0.0686 -> 0.0641 um over a 0.0567 um
+    # sensor floor (6.6 % of the rmse, 40 % of the mean square above the noise), validation 0.588 ->
+    # 0.0597 um (90 %), the load cell reaching 1.8x further: refused as chance extrapolation before
+    # decision 0044 (the model error's gains are 23 % against 97 %)
+    train, validation = (0.06863, 0.06408), (0.5876, 0.05973)
+    assert not gains_agree(train, validation, reach=1.8)
+    assert gains_agree(train, validation, reach=1.8, noise=0.05674, uncertainty=0.068)
+    # seed 1530: an output saturation, training 0.342 -> 0.307 um over 0.294 um, validation 1.0 -> 0.36 um
+    assert gains_agree((0.3415, 0.3071), (0.9996, 0.3590), noise=0.2941, uncertainty=0.112)
+    assert not gains_agree((0.3415, 0.3071), (0.9996, 0.3590))
+    # seed 1449: training at the floor (0.4446 -> 0.4439 um under a 0.4466 um floor) shows nothing
+    # the refit learned; a 23 % validation gain there stays chance extrapolation
+    assert not gains_agree((0.4446, 0.4439), (45.72, 35.39), noise=0.4466, uncertainty=0.086)
+    # seed 146's knee, whose training error is far above a small floor, stays refused
+    assert not gains_agree((2.247, 1.992), (1.571, 0.3608), noise=0.05, uncertainty=0.05)
+
+
+def test_the_noise_floor_knows_how_well_its_variance_is_known():
+    floor = NoiseFloor(0.0567, {"differences_1": 0.0586, "differences_2": 0.0570, "spectrum": 0.0568,
+                                "holds": 0.0567, "residual": 0.09, "chosen": "holds", "hold_samples": 7865})
+    assert floor.variance_uncertainty() == pytest.approx((0.0586 / 0.0567) ** 2 - 1)  # the residual is no sensor estimate
+    assert NoiseFloor(0.1, {"spectrum": 0.1}).variance_uncertainty() == float("inf")
+
+
+def test_the_reason_gives_the_gains_above_the_noise_when_it_took_the_noise_out():
+    ev = {"train_rmse": [0.4446, 0.4439], "validation_rmse": [45.72, 35.39], "checks": {},
+          "model_error_gains": {"first": 0.016, "second": 0.23, "noise_variance_uncertainty": 0.086}}
+    text = check_reason("train_and_validation_agree", ev, "um")["text"]
+    assert "the training error above the sensor noise fell 1.6 % against 23 % on validation" in text
