@@ -52,6 +52,12 @@ TRIM_KEEP = 0.9
 _TRIM_VARIANCE = 0.6236
 
 
+#: Sensor estimates whose variance is within this ratio of the floor's agree with it: their spread
+#: is how well the floor is known (:meth:`NoiseFloor.variance_uncertainty`). Beyond, an estimate
+#: holds signal content (decision 0044).
+AGREEING_VARIANCE_RATIO = 2.0
+
+
 class NoiseFloor(float):
     """The noise floor (a float, output unit) with ``estimates``: every estimate by name, what it
     rests on, and ``chosen``, the estimate taken."""
@@ -68,12 +74,16 @@ class NoiseFloor(float):
 
     def variance_uncertainty(self) -> float:
         """How uncertain the floor's variance is, as a fraction of it: the spread of the sensor
-        estimates (differences, spectrum, holds), (largest / smallest)^2 - 1. Signal content only
-        inflates an estimate, so a wide spread says the floor is poorly pinned down (inf when fewer
-        than two estimates exist)."""
+        estimates (differences, spectrum, holds) that agree with the floor, (largest / smallest)^2 - 1
+        over those within AGREEING_VARIANCE_RATIO of it in variance. Signal content only inflates an
+        estimate: one far above the floor measured the signal (first differences of a 10 kHz record
+        of a fast drive: 46x the spectrum's), not the floor's uncertainty. inf when fewer than two
+        estimates agree."""
+        floor = float(self)
         vals = [float(v) for k, v in self.estimates.items()
                 if (k.startswith("differences_") or k in ("spectrum", "holds"))
                 and isinstance(v, (int, float)) and math.isfinite(v) and v > 0]
+        vals = [v for v in vals if floor > 0 and (v / floor) ** 2 <= AGREEING_VARIANCE_RATIO]
         if len(vals) < 2:
             return math.inf
         return (max(vals) / min(vals)) ** 2 - 1.0

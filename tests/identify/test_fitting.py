@@ -16,6 +16,7 @@ from hilbench.cli import app
 from hilbench.errors import DataError, UserError
 from hilbench.identify.fitting import evaluate, fit, load_runs
 from hilbench.identify.metrics import METRIC_KEYS
+from hilbench.identify.separable import SAME_OPTIMUM
 from hilbench.models import Model, RunData, SpecError
 from hilbench.recording.hdf5 import Recording, RecordingWriter
 from tests.conftest import MINIMAL_RIG
@@ -365,15 +366,18 @@ def test_warm_refit_scans_only_the_new_effect(pi_h5):
 def test_warm_refit_of_a_shaped_base_also_searches_from_the_cold_starts(pi_h5):
     """When the base's own shape was copied (PMPI's etas), local searches also start at the best
     points of the cold fit's scan, as many as the cold fit runs (decisions 0027, 0029): the same
-    starts and results as the cold fit's searches, so the warm refit is never worse than it nor
-    than the simpler model."""
+    starts and results as the cold fit's searches. The warm refit is never worse than the simpler
+    model, and no worse than the cold fit by more than SAME_OPTIMUM: where the cold search reaches
+    the warm one's training error within that margin, the start the simpler model chose is kept
+    (decision 0027; on an AVX-512 machine the cold fit trained 0.13 % lower and the warm start was kept)."""
     base = fit(pi_h5, "pmpi")
     cold = fit(pi_h5, "pmpi+delay")
     warm = fit(pi_h5, "pmpi+delay", start_from=base.model)
     assert cold.report.starts == 2 and warm.report.starts == 3
     assert warm.report.history[1:] == cold.report.history
     # (the searches score a thinned set of rows, the final weights every row: equal to 0.1 %)
-    assert warm.metrics["train"]["rmse"] <= min(base.metrics["train"]["rmse"], cold.metrics["train"]["rmse"]) * 1.001
+    assert warm.metrics["train"]["rmse"] <= base.metrics["train"]["rmse"] * 1.001
+    assert warm.metrics["train"]["rmse"] <= cold.metrics["train"]["rmse"] * (1 + SAME_OPTIMUM)
 
 
 def test_rows_selected_per_block_equal_the_stacked_matrix(pi_h5):
