@@ -28,9 +28,11 @@ SUM_TEST_MAX_BLOCKS = 200
 #: ... and this many random sign flips: p resolves to 1e-4, far below P_MAX.
 SUM_TEST_FLIPS = 10000
 
-#: The current validation rmse must exceed this multiple of the noise floor: an error at the
-#: sensor's noise has nothing left to explain. The floor is the sensor's, estimated from the measured
-#: output (hilbench/diagnosis/noise.py), not from the model's residual, which fast model error inflates.
+#: The current validation rmse must exceed the noise floor by more than the floor's own uncertainty
+#: (an error at the sensor's noise has nothing left to explain), and at most by this multiple of it
+#: when that uncertainty is larger or unknown (verdict.error_above_noise, decision 0045). The floor is
+#: the sensor's, estimated from the measured output (hilbench/diagnosis/noise.py), not from the
+#: model's residual, which fast model error inflates.
 NOISE_FACTOR = 1.5
 
 #: A noise estimate counts only when it rests on this many samples: the robust std of n samples

@@ -13,6 +13,7 @@ import pytest
 
 from hilbench.diagnosis.noise import NoiseFloor, quantum, residual_noise_floor, segments, sensor_noise
 from hilbench.diagnosis.rows import noise_floor, residual_rows
+from hilbench.diagnosis.verdict import check_reason, error_above_noise, noise_band
 from hilbench.identify.fitting import fit
 from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.rig.config import load_rig
@@ -163,3 +164,29 @@ def test_holds_and_segments():
     assert est.estimates["hold_samples"] > 5000
     assert est.estimates["holds"] == pytest.approx(0.1, rel=0.1)
     assert est == pytest.approx(0.1, rel=0.1)
+
+
+def test_error_above_noise_is_judged_against_the_floors_own_uncertainty():
+    """Decision 0045: model error is what exceeds the floor's mean square by more than the floor's
+    own variance uncertainty; the fixed 1.5x band stays only where the floor is known less well."""
+    # seed 2033, a 1.7-sample amplifier lag: 0.0613 um over a 0.0441 um floor whose estimates agree to
+    # u = 0.029 (0.93 of the noise variance above it); the delay refit took it to 0.0447 um, p = 1e-4
+    assert error_above_noise(0.06135, 0.04413, 0.029)
+    assert not error_above_noise(0.06135, 0.04413, float("inf"))  # the old 1.5x refused it
+    # seed 2029, a resonance: 1.23x a floor known to u = 0.24 (0.52 of its variance above it)
+    assert error_above_noise(0.014769, 0.011981, 0.244)
+    # within the floor's own uncertainty: nothing left to explain
+    assert not error_above_noise(1.1, 1.0, 0.25)
+    assert noise_band(1.0, 0.21) == pytest.approx(1.1)
+    # a floor known less well than the old band, or not at all: the band stays 1.5x
+    assert noise_band(2.0, 3.0) == pytest.approx(3.0)
+    assert noise_band(2.0, float("inf")) == pytest.approx(3.0)
+    assert not error_above_noise(2.9, 2.0, float("inf")) and error_above_noise(3.1, 2.0, float("inf"))
+
+
+def test_the_reason_names_the_band_the_floor_allows():
+    ev = {"validation_rmse": [0.0128, 0.0122], "noise_floor": 0.011981, "noise_band": noise_band(0.011981, 0.244),
+          "checks": {"error_above_noise": False}}
+    r = check_reason("error_above_noise", ev, "um")
+    assert r["required"] == "> 1.12" and "1.07x the sensor noise floor" in r["text"]
+    assert "within the 1.12x the floor's own uncertainty allows" in r["text"]
