@@ -19,7 +19,7 @@ def test_every_effect_names_a_plant_table_a_component_and_a_signature():
         assert effect.signature in SIGNATURES, effect.name
         assert all(r in REQUIREMENTS for r in effect.requires), effect.name
         assert effect.evidence_check is None or effect.evidence_check in EVIDENCE_CHECKS
-        assert effect.form_choice in ("train", "inner-split", "inner-split-both", "inner-blocks")
+        assert effect.form_choice in ("train", "inner-split", "inner-split-both", "inner-range", "inner-blocks")
     assert E.AUX_CHANNEL.signature in SIGNATURES
 
 

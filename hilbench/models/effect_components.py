@@ -22,7 +22,8 @@ class Asymmetry(Component):
     """Memoryless polynomial shaping v^2 ... v^order of the normalised input (002 cubic, 004 PMPI).
 
     The default order 4 adds the quartic term a plant's polynomial often has (an even v^4 cannot
-    be mimicked by v^2 over a wide drive range)."""
+    be mimicked by v^2 over a wide drive range); the diagnosis tries order 2 first and keeps 4 only
+    where it extrapolates better in input (decision 0046)."""
 
     name = "asymmetry"
     summary = "memoryless polynomial v^2 ... v^order, order 4 by default (002 cubic, 004 PMPI): loops not centrally symmetric"

@@ -122,6 +122,10 @@ CASES = [
     # the floor's own uncertainty (decision 0045)
     pytest.param(2033, "delay", "amplifier", id="2033-delay-amplifier-duhem-d"),
     pytest.param(2029, "dynamics", "resonance-above-drive", id="2029-dynamics-above-drive-duhem-d"),
+    # an even v^2 on a one-sided drive whose test run drives 1.23x further than training: v^2..v^4
+    # validated 0.175 um and a saturation (0.090) ranked first; v^2 alone validates 0.040 um, and
+    # the training rows at the largest drive choose it (decision 0046)
+    pytest.param(2129, "asymmetry", "even-2", id="2129-asymmetry-even2-one-sided-pi1"),
 ]
 
 
@@ -149,6 +153,20 @@ def test_hidden_effect_ranked_first_and_significant(seed, hidden, form, folder):
     d = diagnose(paths, case.spec, **kw)
     table = [(c.effect, round(c.expected_gain, 3), c.significant) for c in d.effects]
     assert d.effects and d.effects[0].effect == hidden and d.effects[0].significant, table
+
+
+@pytest.mark.parametrize(("seed", "form", "order"), [pytest.param(2129, "even-2", "asymmetry(order=2)", id="2129-even-2"),
+                                                     pytest.param(2051, "even-4", "asymmetry", id="2051-even-4")])
+def test_the_polynomial_order_is_chosen_where_it_must_extrapolate(seed, form, order, folder):
+    """Decision 0046: v^2 alone unless v^2..v^4 predicts the training rows at the largest inputs
+    better from the rows below them; an even v^4 keeps its quartic."""
+    case = DC.draw_case(seed)
+    assert case.hidden == ["asymmetry"] and case.forms["asymmetry"] == form
+    paths, kw = DC.write_case(case, folder)
+    d = diagnose(paths, case.spec, **kw)
+    (asym,) = [c for c in d.effects if c.effect == "asymmetry"]
+    assert asym.spec == f"{case.spec}+{order}", asym.spec
+    assert d.effects[0] is asym and asym.significant
 
 
 def test_a_resonance_rung_by_few_steps_is_found_and_only_the_block_test_may_doubt_it(folder):
