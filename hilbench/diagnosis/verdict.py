@@ -472,7 +472,8 @@ def rank(cands: list[Candidate]) -> None:
     significant single it does not beat by MIN_GAIN (:func:`_pairs_behind_equal_singles`). When the best one's
     validation error cannot be told from another significant candidate's (the other's rmse within
     PARSIMONY_MARGIN of the best's, or the block tests of
-    :func:`hilbench.diagnosis.significance.improvement_test` give p >= P_MAX) the two refits explain
+    :func:`hilbench.diagnosis.significance.improvement_test` give p >= P_MAX while the best does not
+    leave less than 1 / TIE_MEAN_SQUARE_RATIO of the other's mean square) the two refits explain
     the data equally well, and the tie is broken:
 
     1. by the residual's own pattern: the candidate whose ``signature`` (fraction of the error's
@@ -507,7 +508,8 @@ def rank(cands: list[Candidate]) -> None:
             continue
         p_top_better, _, _ = improvement_test(e_c, e_top)
         equal = rms(e_c) <= rms(e_top) * (1.0 + T.PARSIMONY_MARGIN)
-        if equal or p_top_better >= T.P_MAX:  # the data cannot tell them apart
+        decisive = rms(e_c) ** 2 > T.TIE_MEAN_SQUARE_RATIO * rms(e_top) ** 2  # half the error: no tie
+        if equal or (p_top_better >= T.P_MAX and not decisive):  # the data cannot tell them apart
             tied.append((c, p_top_better))
     best, best_p, reason = top, 1.0, ""
     for c, p in tied:  # (rate-dependence, creep: no pattern to weigh, the gain order stands)

@@ -149,6 +149,15 @@ def test_when_pairs_are_tried():
     # at most three members
     many = [_cand(f"e{k}", -0.1, 0.2 + k / 100, False, agree) for k in range(5)]
     assert [c.effect for c in should_try(many)] == ["e4", "e3", "e2"]
+    # ... and the single that carries over best when the places by training gain leave it out (seed
+    # 2202: two terms that only learned training and a creep bank took them from a temperature ramp)
+    ramp = _cand("temperature", 0.27, 0.28, False, ("blocks_p_below_0.01",))
+    learned = [_cand("asymmetry", -0.04, 0.66, False, agree), _cand("saturation", -0.05, 0.66, False, agree),
+               _cand("creep", 0.26, 0.31, False, ("drift_on_holds",))]
+    assert [c.effect for c in should_try([*learned, ramp])] == ["asymmetry", "saturation", "creep", "temperature"]
+    weak = [*learned[:2], _cand("creep", 0.02, 0.31, False, ("drift_on_holds",)),
+            _cand("temperature", 0.05, 0.28, False, agree)]
+    assert [c.effect for c in should_try(weak)] == ["asymmetry", "saturation", "creep"]  # under MIN_GAIN: not added
 
 
 def test_pair_specs():

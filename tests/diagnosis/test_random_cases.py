@@ -126,6 +126,11 @@ CASES = [
     # validated 0.175 um and a saturation (0.090) ranked first; v^2 alone validates 0.040 um, and
     # the training rows at the largest drive choose it (decision 0046)
     pytest.param(2129, "asymmetry", "even-2", id="2129-asymmetry-even2-one-sided-pi1"),
+    # an output knee on a bipolar PI: the knee of the model's output validated at 0.55 um, an even
+    # v^2 at 1.04; the block tests could not separate them over 20 blocks (p 0.013) and the even
+    # pattern put v^2 first, until a leader leaving under half the other's mean square was no tie
+    # (decision 0047)
+    pytest.param(2220, "saturation", "output-knee", id="2220-saturation-output-knee-pi"),
 ]
 
 

@@ -123,6 +123,28 @@ def test_a_pattern_does_not_promote_a_candidate_with_more_error_in_a_few_stretch
     assert "ranked_by_signature" not in other.evidence
 
 
+def test_a_leader_leaving_half_the_mean_square_is_not_tied_whatever_the_blocks_say():
+    """Randomized seed 2220 (an output knee): saturation validated at 0.55 um, an even term at 1.04,
+    the block test p 0.013, and the even pattern ranked the even term first. Here the other's error
+    is the leader's except one short stretch, 23x larger: one block of the test's 200, so the tests
+    cannot separate them, but the other's rmse is 1.9x the leader's (3.6x the mean square). The
+    gain order stands; at 1.3x (1.7x the mean square) it is a tie and the pattern decides."""
+    rng = np.random.default_rng(5)
+    e = rng.normal(0.0, 1.0, N)
+    for factor, leader_stays in ((24.0, True), (11.7, False)):
+        worse = e.copy()
+        worse[1000:1020] *= factor
+        ratio = float(np.sqrt(np.mean(worse**2) / np.mean(e**2)))
+        assert (ratio > 1.85) if leader_stays else (1.2 < ratio < np.sqrt(T.TIE_MEAN_SQUARE_RATIO))
+        best = _candidate("saturation", 0.88, 12, e)
+        other = _candidate("asymmetry", 0.77, 9, worse)
+        best.evidence["signature"], other.evidence["signature"] = 0.28, 0.55
+        cands = [other, best]
+        rank(cands)
+        assert (cands[0] is best) == leader_stays
+        assert ("ranked_by_signature" in other.evidence) == (not leader_stays)
+
+
 def test_an_added_effects_step_records_the_base_refitted_to_a_better_optimum():
     """diagnose --add/--auto: when the round judged against the base refitted from a candidate's
     shape (base_polish), the step's model is that refit; the starting step stays the user's."""
