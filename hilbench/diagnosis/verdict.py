@@ -466,40 +466,6 @@ def _pairs_behind_equal_singles(cands: list[Candidate]) -> None:
             cands.insert(last, pair)
 
 
-def evidence_factor(c: Candidate) -> float:
-    """log of the factor by which a single effect's refit lowers the training rmse plus the log of
-    the factor on validation (nan without both): the two halves of the evidence weighed alike."""
-    ev = c.evidence
-    if "train_gain" not in ev or "validation_rmse" not in ev or "pair" in ev or "rate_calibration" in ev:
-        return math.nan
-    old_v, new_v = (float(x) for x in ev["validation_rmse"])
-    train_left = 1.0 - float(ev["train_gain"])  # new over old training rmse
-    if not (old_v > 0 and new_v > 0 and train_left > 0):
-        return math.nan
-    return math.log(old_v / new_v) - math.log(train_left)
-
-
-def _leader_by_both_halves(cands: list[Candidate]) -> Candidate | None:
-    """The significant single effect whose refit lowers training and validation most together
-    (:func:`evidence_factor`), when it is not the leader by validation alone and its validation
-    rmse is within a factor sqrt(TIE_MEAN_SQUARE_RATIO) of the leader's (decision 0049)."""
-    top = cands[0]
-    f_top = evidence_factor(top)
-    if math.isnan(f_top):
-        return None
-    v_top = float(top.evidence["validation_rmse"][1])
-    best, f_best = None, f_top
-    for c in cands[1:]:
-        if not c.significant:
-            continue
-        f = evidence_factor(c)
-        if math.isnan(f) or float(c.evidence["validation_rmse"][1]) ** 2 > T.TIE_MEAN_SQUARE_RATIO * v_top**2:
-            continue
-        if f > f_best:
-            best, f_best = c, f
-    return best
-
-
 def rank(cands: list[Candidate]) -> None:
     """Order candidates in place: significant first, then by expected gain, a pair behind its
     members that are significant alone (:func:`_members_before_their_pairs`) and behind any
@@ -525,12 +491,7 @@ def rank(cands: list[Candidate]) -> None:
        the better explanation; the richer refit matched them by flexibility (on a one-sided drive a
        flattening of every hysteresis column mimics an even term in the input). Not when the leader
        fits the training rows PARSIMONY_TRAINING_RATIO times better than the simpler one: a few
-       more parameters do not buy multiples, the physics does (decision 0030).
-
-    When no tie rule moved the leader, a significant single effect whose refit lowers training and
-    validation more together (:func:`evidence_factor`) and validates within sqrt(TIE_MEAN_SQUARE_RATIO)
-    of the leader goes first (:func:`_leader_by_both_halves`, decision 0049): a delay that trains 5.6x
-    lower is not passed by a resonance that validates 7 % lower and trains 3.1x lower."""
+       more parameters do not buy multiples, the physics does (decision 0030)."""
     cands.sort(key=lambda c: (not c.significant, -c.expected_gain))
     _members_before_their_pairs(cands)
     _pairs_behind_equal_singles(cands)
@@ -565,23 +526,10 @@ def rank(cands: list[Candidate]) -> None:
                 continue  # the leader's extra parameters explain the training rows, not flexibility
             if free_parameters(c) < fewest and rms(validation_errors(c.fitted)) <= rms_top * (1.0 + T.PARSIMONY_MARGIN):
                 best, best_p, reason, fewest = c, p, "parsimony", free_parameters(c)
-    if best is top:
-        both = _leader_by_both_halves(cands)
-        if both is not None:
-            best, reason = both, "both halves"
     if best is not top:
         cands.remove(best)
         cands.insert(0, best)
-        if reason == "both halves":
-            t_top, t_best = 1.0 - top.evidence["train_gain"], 1.0 - best.evidence["train_gain"]
-            best.evidence["ranked_by_training_and_validation"] = {
-                "over": top.effect, "evidence_factors": {top.effect: math.exp(evidence_factor(top)),
-                                                         best.effect: math.exp(evidence_factor(best))}}
-            best.explanation += (f"; ranked over {top.effect}, which validates {-100 * relative_gain(best.evidence['validation_rmse'][1], top.evidence['validation_rmse'][1]):.2g} % lower: "
-                                 f"{best.effect} lowers the training rmse {1 / t_best:.3g}x against {1 / t_top:.3g}x, "
-                                 f"and training and validation together {math.exp(evidence_factor(best)):.3g}x against "
-                                 f"{math.exp(evidence_factor(top)):.3g}x")
-        elif reason == "signature":
+        if reason == "signature":
             best.evidence["ranked_by_signature"] = {
                 "over": top.effect, "p_value_of_difference": best_p,
                 "signatures": {top.effect: top.evidence.get("signature"), best.effect: best.evidence.get("signature")}}
