@@ -77,7 +77,7 @@ def should_try(cands: list[Candidate]) -> list[Candidate]:
     # even v^6 and a saturation trained 66 %, a creep bank 31 %, and the temperature ramp that
     # validated 27 % was fourth; jointly with the v^6 it validates 83 %) (decision 0048)
     carries = max(members, key=lambda c: c.expected_gain, default=None)
-    if carries is not None and carries not in chosen and carries.expected_gain > T.MIN_GAIN:
+    if carries is not None and all(carries is not c for c in chosen) and carries.expected_gain > T.MIN_GAIN:
         chosen.append(carries)
     return chosen
 
