@@ -72,6 +72,10 @@ CREEP_MIN_HOLD_S = 0.2
 INNER_SPLIT = 0.8
 RICHER_FORM_MARGIN = 0.1
 
+#: The rate forms are compared on held-back rows whose drive frequency lies within the inner fit's
+#: own, widened by this factor for the turning-point estimator's jitter (decision 0050).
+INNER_RATE_TOLERANCE = 1.05
+
 #: The base refitted from a significant candidate's shape replaces the base when it fits the
 #: training rows better by more than this fraction (hilbench/diagnosis/base_polish.py): below it
 #: the two are the same optimum reached again, up to the search's tolerance.

@@ -44,6 +44,15 @@ CASES = [
     # with their own weights (+-1e4) it trained to the noise and validated 10x worse than the base;
     # as one gain k(f) on the loop (decision 0018) it carries over
     pytest.param(150, "rate-dependence", "frequency-gain", id="150-rate-frequency-gain-pmpi"),
+    # a frequency gain whose training program holds its fastest sine in one held-back block of the
+    # form choice: the polynomials, held at the inner fit's rates, were judged there on rates they
+    # never saw and lost to the damping (10x lower validation rmse with them); scored where the inner
+    # fit saw the rates they win (decision 0050)
+    pytest.param(2664, "rate-dependence", "frequency-gain", id="2664-rate-frequency-gain-pi1"),
+    # the same with the training's only 25 Hz sine and a junction reading 93 Hz in one held-back block,
+    # where the inner fit's width term predicted 4078 um (base 21 um); 39x lower validation rmse with
+    # the polynomials (decision 0050)
+    pytest.param(2734, "rate-dependence", "frequency-gain", id="2734-rate-frequency-gain-pmpi"),
     pytest.param(177, "rate-dependence", "velocity-damping", id="177-rate-velocity-damping-pi1"),
     # velocity damping on a one-sided drive: 44 % lower validation rmse, on the fast stretches only;
     # failed the signed-rank test over 20 blocks, passes the sum test (decision 0022)
