@@ -327,7 +327,27 @@ def _start_points(model: Model, runs: list[RunData], train_masks: list[np.ndarra
             x = x0.copy()
             x[fresh] = point
             candidates.append(x)
-    return candidates + _starts_from_residual(model, runs, train_masks, problem, x0, fresh)
+    return candidates + _starts_from_residual(model, runs, train_masks, problem, x0, fresh) + \
+        _joint_starts(searched, problem, x0)
+
+
+def _joint_starts(searched: list[Any], problem: _Problem, x0: np.ndarray) -> list[np.ndarray]:
+    """Starts an effect adds when it is searched together with another effect
+    (:meth:`Component.joint_starts`: a delay's whole samples), the other parameters at ``x0``."""
+    effects = [c for c in searched if c.role == "effect"]
+    if len(effects) < 2:
+        return []
+    fs = next((r.sample_rate_hz for r, m in zip(problem.runs, problem.masks) if m.any()), 0.0)
+    position = {id(p): k for k, p in enumerate(problem.params)}
+    out = []
+    for component in effects:
+        for start in component.joint_starts(fs):
+            theta = problem.to_theta(x0)
+            for p in component.shape():
+                if p.name in start and id(p) in position:
+                    theta[position[id(p)]] = start[p.name]
+            out.append(problem.to_x(theta))
+    return out
 
 
 def _scored(problem: _Problem, candidates: list[np.ndarray]) -> list[tuple[float, np.ndarray]]:

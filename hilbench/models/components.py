@@ -149,6 +149,12 @@ class Component:
         return none."""
         return []
 
+    def joint_starts(self, fs: float) -> list[dict[str, float]]:
+        """Starting points of the shape search (values by parameter name) to add when this component
+        is searched together with another effect: shapes whose error surface is flat except near
+        the truth once the other effect's error dominates. Most components have none."""
+        return []
+
     # -- columns -------------------------------------------------------------------------------
     def new_state(self) -> dict[str, Any]:
         return {}

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis.diagnose import diagnose
-from hilbench.diagnosis.pairs import should_try
+from hilbench.diagnosis.pairs import delay_partners, should_try
 from hilbench.diagnosis.refit import added_parts, effect_specs, spec_parts
 from hilbench.diagnosis.verdict import Candidate
 from hilbench.recording.hdf5 import RecordingWriter
@@ -158,6 +158,25 @@ def test_when_pairs_are_tried():
     weak = [*learned[:2], _cand("creep", 0.02, 0.31, False, ("drift_on_holds",)),
             _cand("temperature", 0.05, 0.28, False, agree)]
     assert [c.effect for c in should_try(weak)] == ["asymmetry", "saturation", "creep"]  # under MIN_GAIN: not added
+
+
+def test_the_delay_is_paired_when_nothing_carries_over_an_error_far_above_the_noise():
+    """A dead time moves where every other effect acts: with a damping at slewed steps neither single
+    learns (randomized seeds 2109, 2186, 2295, decision 0051). Far above the noise and nothing
+    carrying over, the delay is paired with every other single; near the noise, or when a single
+    carries over, or without a delay candidate, not."""
+    from types import SimpleNamespace
+
+    failed = ("gain_over_10pct",)
+    singles = [_cand("rate-dependence", 0.014, 0.109, False, failed), _cand("dynamics", 0.012, 0.058, False, failed),
+               _cand("delay", 0.009, 0.056, False, failed)]
+    base = SimpleNamespace(metrics={"validation": {"rmse": 1.04}})
+    assert [(a.effect, b.effect) for a, b in delay_partners(singles, base, 0.042)] == \
+        [("delay", "rate-dependence"), ("delay", "dynamics")]
+    assert delay_partners(singles, base, 0.2) == []  # 5 noise floors: the base check's "near the data"
+    carries = [*singles, _cand("creep", 0.15, 0.1, False, ("drift_on_holds",))]
+    assert delay_partners(carries, base, 0.042) == []
+    assert delay_partners(singles[:2], base, 0.042) == []
 
 
 def test_pair_specs():
