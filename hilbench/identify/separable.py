@@ -339,15 +339,18 @@ def _joint_starts(searched: list[Any], problem: _Problem, x0: np.ndarray) -> lis
         return []
     fs = next((r.sample_rate_hz for r, m in zip(problem.runs, problem.masks) if m.any()), 0.0)
     position = {id(p): k for k, p in enumerate(problem.params)}
-    out = []
-    for component in effects:
-        for start in component.joint_starts(fs):
-            theta = problem.to_theta(x0)
-            for p in component.shape():
-                if p.name in start and id(p) in position:
-                    theta[position[id(p)]] = start[p.name]
-            out.append(problem.to_x(theta))
-    return out
+    return [_start_at(problem, x0, component, start, position)
+            for component in effects for start in component.joint_starts(fs)]
+
+
+def _start_at(problem: _Problem, x0: np.ndarray, component: Any, start: dict[str, float],
+              position: dict[int, int]) -> np.ndarray:
+    """``x0`` with ``component``'s parameters named in ``start`` set to its values (parameter units)."""
+    theta = problem.to_theta(x0)
+    for p in component.shape():
+        if p.name in start and id(p) in position:
+            theta[position[id(p)]] = start[p.name]
+    return problem.to_x(theta)
 
 
 def _scored(problem: _Problem, candidates: list[np.ndarray]) -> list[tuple[float, np.ndarray]]:
@@ -402,12 +405,8 @@ def _starts_from_residual(model: Model, runs: list[RunData], train_masks: list[n
             part, at = residual[at: at + rows.size], at + rows.size
             if r.sample_rate_hz == fs:  # one spectrum: runs at another rate are left out
                 stretches += contiguous_stretches(part, rows)
-        for start in component.starts_from_residual(stretches, fs):
-            x = problem.to_theta(x0)
-            for p in component.shape():
-                if p.name in start and id(p) in position:
-                    x[position[id(p)]] = start[p.name]
-            out.append(problem.to_x(x))
+        out += [_start_at(problem, x0, component, start, position)
+                for start in component.starts_from_residual(stretches, fs)]
     return out
 
 
