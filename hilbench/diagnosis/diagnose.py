@@ -11,7 +11,9 @@
   of validation's: neither an artefact of more parameters nor chance extrapolation), (c) block tests
   on the squared-error differences of contiguous validation blocks (signed ranks over ~20 blocks
   for a gain spread over the record, sign flips of the sum for one concentrated in a few
-  stretches, :mod:`hilbench.diagnosis.significance`) give p < 0.01, and (d) the current validation error is above the noise floor
+  stretches, :mod:`hilbench.diagnosis.significance`) give p < 0.01 (when the validation rows are too
+  short for that and every other check holds, jointly with the same tests on held-back training
+  rows, :mod:`hilbench.diagnosis.replication`), and (d) the current validation error is above the noise floor
   (noise estimated from sample-to-sample residual differences);
 * tries every effect of the registry (:mod:`hilbench.effects`) that the data can test
   (:mod:`hilbench.diagnosis.testability`) in the forms its entry lists (:mod:`hilbench.diagnosis.refit`);
@@ -45,6 +47,7 @@ from hilbench.diagnosis.base_check import alternatives, fit_alternative, wrong_b
 from hilbench.diagnosis.base_polish import polished_base
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.refit import fit_effect
+from hilbench.diagnosis.replication import replicate
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.verdict import Candidate, judge, rank, verdict
@@ -121,6 +124,7 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
         other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs,
                                shared=paths.runs)
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
+    replicate(paths, base, cands, kw, jobs)  # gains the validation rows are too short to confirm alone
     other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
         cands.append(other_base)

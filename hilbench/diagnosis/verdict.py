@@ -250,6 +250,13 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
     if key == "blocks_p_below_0.01":
         p = float(ev.get("p_value", math.nan))
         better, blocks = (ev.get("blocks_improved") or [0, 0])[:2]
+        rep = ev.get("replication")
+        if rep:  # decision 0052: the validation p and the held-back training p, each to reach sqrt(P_MAX)
+            hb, hn = rep["held_back_blocks_improved"][:2]
+            return {"check": key, "measured": p, "required": f"< {T.P_MAX:g}",
+                    "text": f"the block test gives p = {rep['validation_p']:.2g} on validation ({better} of {blocks} "
+                            f"blocks improved) and {rep['held_back_p']:.2g} on held-back training rows ({hb} of {hn}), "
+                            f"not both below the {rep['level_each']:.2g} that makes them significant together"}
         return {"check": key, "measured": p, "required": f"< {T.P_MAX:g}",
                 "text": f"the block test gives p = {p:.2g} ({better} of {blocks} validation blocks improved), "
                         f"not below the {T.P_MAX:g} required"}

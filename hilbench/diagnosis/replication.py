@@ -1,0 +1,121 @@
+"""A second, independent block test on held-back training rows, for gains the validation rows are
+too short to confirm alone (decision 0052).
+
+The block tests (:mod:`hilbench.diagnosis.significance`) refer the validation gain to random sign
+flips of contiguous blocks, so their p-value cannot fall below 2**-k when the gain sits in k
+independent stretches: a velocity damping at the 5 steps of a test run reaches p = 0.03 at best
+(randomized seed 3076: validation 51 % lower, training 71 %), a creep or a temperature drift on a
+record a few correlation lengths long fills 20 blocks that are barely independent (seeds 2801,
+2772: p 0.07 and 0.03, validation 14 % and 12 % lower). The validation rows are then too short to
+tell, not the effect too weak.
+
+The training rows hold more of the same evidence, but the refit saw them. So a candidate that failed
+the block test only, at a validation p below ``sqrt(P_MAX)``, is refitted together with the base on
+training without 1 - INNER_SPLIT of it in interleaved blocks (:func:`hilbench.identify.sweep.interleaved`,
+as the rate forms' inner check holds rows back), and the same block tests compare the two inner fits
+on the held-back rows. Neither inner fit saw them, and they are not validation rows: under no effect
+the two p-values are independent and uniform, so the chance that both fall below ``sqrt(P_MAX)`` is
+P_MAX. The joint p-value ``max(p_validation, p_held_back)**2`` replaces the block test's p, and the
+check ``blocks_p_below_0.01`` keeps its meaning: the gain is not chance at the 1 % level. Requiring
+both (rather than combining them, e.g. by Fisher's method) keeps the user's validation rows a judge:
+a gain on training rows alone, however clear, does not make a candidate significant.
+
+Only candidates that failed the block test alone are refitted, so the cost falls on the few cases it
+can change: every other check (the gain, the agreement of training and validation, the error above
+the sensor noise, the pair's margin) must already hold.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.significance import block_tests
+from hilbench.diagnosis.verdict import Candidate
+from hilbench.diagnosis.workers import run_tasks
+from hilbench.identify.dataset import Dataset, as_dataset
+from hilbench.identify.fitting import FitResult, assign_roles, fit
+from hilbench.identify.sweep import interleaved
+
+#: the check the replication may settle (verdict.py names it)
+BLOCK_CHECK = "blocks_p_below_0.01"
+
+
+def replication_level() -> float:
+    """The p each of the two independent block tests must reach: their joint level is P_MAX."""
+    return math.sqrt(T.P_MAX)
+
+
+def needs_replication(c: Candidate) -> bool:
+    """Failed the block test and nothing else, at a validation p below :func:`replication_level`;
+    judged on the user's split (not a rate calibration, whose rows are other runs, nor the base check)."""
+    checks = c.evidence.get("checks") or {}
+    failed = [k for k, ok in checks.items() if not ok]
+    return (not c.significant and failed == [BLOCK_CHECK] and c.fitted is not None and c.effect != "base"
+            and "rate_calibration" not in c.evidence
+            and float(c.evidence.get("p_value", 1.0)) < replication_level())
+
+
+def _held_back_rows(dataset: Dataset, kw: dict[str, Any]) -> tuple[Dataset, list[np.ndarray]]:
+    """The inner fit's data (the user's training rows less the held-back blocks) and the held-back
+    rows, one mask per run."""
+    user = dataset.fit_runs()
+    assign_roles(user, kw.get("train"), kw.get("test"), float(kw.get("train_fraction", 0.7)), dataset.keep)
+    held_back = [interleaved(u.train, T.INNER_SPLIT)[1] for u in user]
+    return replace(dataset, keep=[u.train & ~h for u, h in zip(user, held_back)]), held_back
+
+
+def _held_back_errors(result: FitResult, held_back: list[np.ndarray]) -> np.ndarray:
+    """The inner fit's free-run error on the held-back rows, runs in order."""
+    parts = []
+    for r, rows in zip(result.runs, held_back):
+        if r.simulated is None or r.simulated.size == 0 or not rows.any():
+            continue
+        parts.append((r.simulated - r.data.output)[rows])
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def inner_fit_errors(paths: Any, spec: str, kw: dict[str, Any], start_from: Any) -> np.ndarray:
+    """``spec`` fitted on the training rows less the held-back blocks (warm from ``start_from``, as
+    every refit is), and its error on the held-back rows."""
+    dataset = as_dataset(paths)
+    inner, held_back = _held_back_rows(dataset, kw)
+    if not any(h.any() for h in held_back):
+        return np.zeros(0)
+    result = fit(inner, spec, train_fraction=1.0, start_from=start_from)
+    return _held_back_errors(result, held_back)
+
+
+def replicate(paths: Any, base: FitResult, cands: list[Candidate], kw: dict[str, Any], jobs: int = 1) -> None:
+    """Settle the block test of every candidate that :func:`needs_replication` on held-back training
+    rows (module docstring), in place: the evidence gains ``replication`` and the joint p-value."""
+    todo = [c for c in cands if needs_replication(c)]
+    if not todo:
+        return
+    specs = [base.spec, *(c.spec for c in todo)]
+    errors = run_tasks([partial(inner_fit_errors, paths, s, kw, base.model) for s in specs], jobs,
+                       names=[f"replicate on held-back training: {s}" for s in specs])
+    e_base = errors[0]
+    for c, e_new in zip(todo, errors[1:]):
+        if e_base.size == 0 or e_new.size != e_base.size:
+            continue
+        held = block_tests(e_base, e_new)
+        p_validation = float(c.evidence["p_value"])
+        joint = max(p_validation, held.p) ** 2
+        c.evidence["replication"] = {
+            "validation_p": p_validation, "held_back_p": held.p, "held_back_blocks_improved": [held.better, held.blocks],
+            "held_back_rows": int(e_base.size), "held_back_rmse": [_rms(e_base), _rms(e_new)],
+            "level_each": replication_level(),
+        }
+        c.evidence["p_value"] = joint
+        c.evidence["checks"][BLOCK_CHECK] = joint < T.P_MAX
+        c.significant = all(c.evidence["checks"].values())
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2))) if e.size else math.nan
