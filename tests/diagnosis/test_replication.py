@@ -1,0 +1,61 @@
+"""`hilbench.diagnosis.replication`: a gain the validation rows are too short to confirm alone is
+tested again on held-back training rows, and is significant when both block tests reach sqrt(P_MAX)
+(decision 0052). End to end on randomized cases: tests/diagnosis/test_random_cases.py (2801, 3076)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.replication import BLOCK_CHECK, needs_replication, replication_level
+from hilbench.diagnosis.significance import block_tests
+from hilbench.diagnosis.verdict import Candidate, check_reason
+
+
+def _candidate(checks: dict[str, bool], p: float, effect: str = "creep", **evidence) -> Candidate:
+    return Candidate(effect, f"pi+{effect}", all(checks.values()), 0.2, "", {"checks": checks, "p_value": p, **evidence},
+                     fitted=object())
+
+
+FAILED_BLOCKS = {"gain_over_10pct": True, "train_and_validation_agree": True, BLOCK_CHECK: False, "error_above_noise": True}
+
+
+def test_the_level_of_each_test_makes_the_pair_of_them_a_one_percent_test():
+    assert replication_level() ** 2 == pytest.approx(T.P_MAX)
+
+
+def test_only_a_candidate_that_failed_the_block_test_alone_near_the_level_is_replicated():
+    assert needs_replication(_candidate(FAILED_BLOCKS, 0.05))
+    assert not needs_replication(_candidate(FAILED_BLOCKS, 0.2)), "validation p beyond sqrt(P_MAX): no evidence there"
+    assert not needs_replication(_candidate({**FAILED_BLOCKS, "gain_over_10pct": False}, 0.05)), "another check failed"
+    assert not needs_replication(_candidate({**FAILED_BLOCKS, "train_and_validation_agree": False}, 0.05))
+    assert not needs_replication(_candidate({k: True for k in FAILED_BLOCKS}, 0.005)), "already significant"
+    assert not needs_replication(_candidate(FAILED_BLOCKS, 0.05, effect="base"))
+    assert not needs_replication(_candidate(FAILED_BLOCKS, 0.05, rate_calibration={}))
+    pair = _candidate({**FAILED_BLOCKS, "pair_over_each_single": True}, 0.03, effect="creep+load")
+    assert needs_replication(pair), "a pair is judged by the same checks"
+
+
+def test_under_no_effect_two_independent_block_tests_both_pass_the_level_about_one_time_in_a_hundred():
+    """The joint level is exact only if each test's p is (close to) uniform under no effect: white
+    residual differences of two models that are equally good, 400 draws of two independent records."""
+    rng = np.random.default_rng(7)
+    both = 0
+    draws = 400
+    for _ in range(draws):
+        p = [block_tests(rng.normal(size=400), rng.normal(size=400)).p for _ in range(2)]
+        both += max(p) < replication_level()
+    # binomial(400, 0.01): mean 4, P(X >= 12) < 0.1 %
+    assert both < 12, both
+
+
+def test_the_reason_names_both_p_values_when_the_replication_fails():
+    ev = {"checks": dict(FAILED_BLOCKS), "p_value": 0.25, "blocks_improved": [16, 20],
+          "replication": {"validation_p": 0.05, "held_back_p": 0.5, "held_back_blocks_improved": [9, 20],
+                          "held_back_rows": 4000, "held_back_rmse": [1.0, 0.99], "level_each": math.sqrt(T.P_MAX)}}
+    reason = check_reason(BLOCK_CHECK, ev)
+    assert "0.05 on validation" in reason["text"] and "0.5 on held-back training rows" in reason["text"], reason
+    assert reason["measured"] == 0.25
