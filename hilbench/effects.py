@@ -88,7 +88,10 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     Effect("rate-dependence", "loop width and gain change with the input rate", "rate_dependence",
            "rate-dependence", forms=("rate-dependence(form=damping)", "rate-dependence(form=frequency)"),
            form_choice="inner-blocks", requires=(SEVERAL_RATES,), signature="fast-vs-slow", papers="003"),
+    # dynamics: the command held linearly between samples (a smooth drive) or sample by sample (a
+    # DAC's staircase); which one the rig has is the data's to say, on training rows (decision 0053)
     Effect("dynamics", "linear dynamics after the hysteresis", "dynamics", "dynamics",
+           forms=("dynamics", "dynamics(hold=zoh)"),
            requires=(BROADBAND,), signature="derivatives", papers="002, 000"),
     # creep: the fixed log-spaced bank first (nothing searched, weights >= 0: little room to
     # overfit); the logarithmic law (the bank's spectrum flat, one weight), two searched elements,

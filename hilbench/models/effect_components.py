@@ -602,7 +602,8 @@ class Dynamics(Component):
     """Linear dynamics after the static part (002 eq. 7, 000 eq. 15), unit static gain.
 
     kind second-order (default): K wn^2 / (s^2 + 2 zeta wn s + wn^2) with K = 1, zeta and the natural
-    frequency searched; kind first-order: one pole; both discretised by first-order hold. kind
+    frequency searched; kind first-order: one pole; both discretised by first-order hold, or by
+    zero-order hold with ``hold=zoh`` (decision 0053). kind
     discrete: a discrete transfer function B(z)/A(z) as 000 eq. 15, with ``pairs`` pairs of complex
     poles (radius < 1, so always stable) and ``zeros`` numerator coefficients, scaled to unit gain.
     """
@@ -618,7 +619,11 @@ class Dynamics(Component):
                       "corner_hz": Option("number", minimum=0.0, exclusive_minimum=True, unit="Hz",
                                           doc="first-order corner frequency, fixed instead of searched"),
                       "pairs": Option("int", default=2, minimum=1, maximum=8, doc="pairs of complex poles (discrete)"),
-                      "zeros": Option("int", default=2, minimum=0, maximum=8, doc="numerator coefficients (discrete)")}
+                      "zeros": Option("int", default=2, minimum=0, maximum=8, doc="numerator coefficients (discrete)"),
+                      "hold": Option("choice", default="foh", choices=("foh", "zoh"),
+                                     doc="how the command is held between samples (second- and first-order): "
+                                         "foh, linear between samples (a smooth drive, no delay built in); "
+                                         "zoh, each sample held (a DAC's staircase, about half a sample later)")}
 
     def prepare(self, s: Signals) -> None:
         if self.params:
@@ -694,10 +699,13 @@ class Dynamics(Component):
         else:
             table = {"kind": "second-order", "gain": 1.0, "zeta": self.param("zeta"),
                      "natural_frequency_hz": self.param("natural_frequency_hz")}
-        # First-order hold: the poles are those of the zero-order hold (z = exp(s T)), so natural
-        # frequency and damping are the plant's, but no sample of delay is built in (the delay
-        # effect models delay).
-        return discretize_dynamics(table, fs, method="foh")
+        # Both holds place the poles at z = exp(s T), so natural frequency and damping are the
+        # plant's either way; they differ in the zeros. First-order hold (linear between samples)
+        # builds no delay in (the delay effect models delay). A plant driven through a DAC sees each
+        # sample held, which zero-order hold describes exactly: about half a sample later at the
+        # drive, which a first-order-hold model can only mimic by moving the resonance (randomized
+        # seed 2948: 123.6 Hz found for 125 Hz, or a half-sample delay beside it; decision 0053).
+        return discretize_dynamics(table, fs, method=str(self.options.get("hold", "foh")))
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
         return None
