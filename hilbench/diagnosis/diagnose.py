@@ -124,10 +124,13 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
         other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs,
                                shared=paths.runs)
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
-    replicate(paths, base, cands, kw, jobs)  # gains the validation rows are too short to confirm alone
     other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
         cands.append(other_base)
+    if other_base is None or not other_base.significant:
+        # gains the validation rows are too short to confirm alone; not on a base the data refuse,
+        # where the report is the base, not small effects on top of it (issue item 5)
+        replicate(paths, base, cands, kw, jobs)
     rank(cands)
     base.notes.extend(n for n in plan.notes if n not in base.notes)  # what the training rows cannot identify
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)

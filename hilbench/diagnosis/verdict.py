@@ -260,6 +260,12 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
         return {"check": key, "measured": p, "required": f"< {T.P_MAX:g}",
                 "text": f"the block test gives p = {p:.2g} ({better} of {blocks} validation blocks improved), "
                         f"not below the {T.P_MAX:g} required"}
+    if key == "held_back_gain_over_10pct":  # decision 0052
+        old_h, new_h = (ev.get("replication") or {}).get("held_back_rmse") or [math.nan, math.nan]
+        g = relative_gain(old_h, new_h)
+        return {"check": key, "measured": g, "required": f"> {T.MIN_GAIN:g}",
+                "text": f"on the held-back training rows the rmse falls {_pct(g)}, less than the "
+                        f"{100 * T.MIN_GAIN:g} % required"}
     if key == "error_above_noise":
         noise = float(ev.get("noise_floor", math.nan))
         ratio = old_v / noise if noise > 0 else math.inf
