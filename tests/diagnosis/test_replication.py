@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.replication import BLOCK_CHECK, needs_replication, replication_level
+from hilbench.diagnosis.replication import BLOCK_CHECK, HELD_BACK_CHECK, needs_replication, replication_level, settle
 from hilbench.diagnosis.significance import block_tests
 from hilbench.diagnosis.verdict import Candidate, check_reason
 
@@ -70,3 +70,25 @@ def test_a_replication_whose_held_back_gain_is_small_names_it():
     reason = check_reason("held_back_gain_over_10pct", ev)
     assert reason["measured"] == pytest.approx(1 - 0.0551 / 0.0601)
     assert "held-back training rows" in reason["text"] and "8.3 %" in reason["text"], reason
+
+
+def test_a_candidate_the_held_back_rows_make_significant_says_so_in_its_explanation():
+    """Issue item 8: the text gives the reason of a verdict as the JSON does, for a significant one
+    too: both p-values, the blocks and the joint p (the failed-check sentence covers the other way)."""
+    c = _candidate(FAILED_BLOCKS, 0.05, blocks_improved=[15, 20])
+    c.explanation = "drift after input changes"
+    rng = np.random.default_rng(3)
+    noise = rng.normal(size=4000)
+    held = block_tests(noise + 0.5 * np.sign(noise), noise)  # the refit removes a clear part of the error
+    assert held.p < replication_level()
+    settle(c, held, 1.0, 0.7, 4000)
+    assert c.significant and c.evidence["checks"][HELD_BACK_CHECK]
+    assert c.evidence["p_value"] == pytest.approx(0.05**2)
+    text = c.reasoned_explanation()
+    assert text.startswith("drift after input changes; significant on two block tests together")
+    assert "p = 0.05 on validation (15 of 20 blocks improved)" in text and "30.0 % lower" in text, text
+    assert "jointly p = 0.0025" in text, text
+
+    refused = _candidate(FAILED_BLOCKS, 0.05, blocks_improved=[15, 20])
+    settle(refused, held, 1.0, 0.95, 4000)  # 5 % on the held-back rows: under MIN_GAIN
+    assert not refused.significant and "significant on two" not in refused.reasoned_explanation()
