@@ -523,8 +523,7 @@ class RateDependence(Component):
         vdot, fn = self.limited(s, f)
         q = 2.0 * np.pi * f * a
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.minimum(np.abs(vdot / np.where(q > 0, q, 1.0)), MK.DRIVE_RATE_RATIO_MOST)
-            md = np.where(q > 0, sgn * ratio**m, 0.0)
+            md = np.where(q > 0, sgn * np.abs(vdot / np.where(q > 0, q, 1.0)) ** m, 0.0)
         moments = self.harmonic_moments()
         order = int(self.constants["order"])
         gain = np.ones_like(s.v)

@@ -24,16 +24,7 @@ __all__ = [
     "turning_point_frequency",
     "N_TP",
     "fractional_delay",
-    "DRIVE_RATE_RATIO_MOST",
 ]
-
-#: rate-dependence(form=frequency) normalises the input rate by the drive's 2 pi f a, f and a its
-#: turning-point estimates of frequency and amplitude. A periodic drive keeps that ratio at or below
-#: 1 (a sine; 2/pi for a triangle); far above it the estimates are stale (a step, a new segment of
-#: smaller amplitude: q -> 0), not a faster drive, so the ratio is held here. Unheld, an inner fit
-#: whose rows end at such a transition extrapolated to 79 um rms on its held-back rows (randomized
-#: seed 3643, 0.05 um held at this value).
-DRIVE_RATE_RATIO_MOST = 2.0
 
 
 @njit(cache=True, inline="always")

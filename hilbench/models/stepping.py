@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from hilbench.models.kernels import DRIVE_RATE_RATIO_MOST, bouc_wen_update
+from hilbench.models.kernels import bouc_wen_update
 from hilbench.sim.kernels import N_TP, TP_A, TP_F, turning_point_update
 
 # -- structure: indices into I ---------------------------------------------------------------------
@@ -317,7 +317,7 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
             f = tp[TP_F]
             fn = min(f / P[P_F_REF], 1.0)
             q = 2.0 * math.pi * f * tp[TP_A]
-            md = sg * min(abs(vdc / q), DRIVE_RATE_RATIO_MOST) ** m if q > 0.0 else 0.0
+            md = sg * abs(vdc / q) ** m if q > 0.0 else 0.0
             order = I[I_ORDER]
             o_mom = I[I_MOMENTS]
             power = 1.0
