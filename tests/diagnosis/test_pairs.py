@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis.diagnose import diagnose
-from hilbench.diagnosis.pairs import delay_partners, should_try
+from hilbench.diagnosis.pairs import delay_partners, pairs_to_try, should_try
 from hilbench.diagnosis.refit import added_parts, effect_specs, spec_parts
 from hilbench.diagnosis.verdict import Candidate
 from hilbench.recording.hdf5 import RecordingWriter
@@ -177,6 +177,28 @@ def test_the_delay_is_paired_when_nothing_carries_over_an_error_far_above_the_no
     carries = [*singles, _cand("creep", 0.15, 0.1, False, ("drift_on_holds",))]
     assert delay_partners(carries, base, 0.042) == []
     assert delay_partners(singles[:2], base, 0.042) == []
+
+
+def test_the_delay_pairs_join_the_usual_pairs_when_nothing_carries_over():
+    """Randomized seed 4084 (a frequency gain and a sensor delay, the base at 56 noise floors): the
+    frequency gain learned training (25 %) and failed on validation (2 %), so the usual rule pairs it,
+    with a creep; no single carried over, so the delay is paired with every other single too, the
+    usual pairs not repeated (decision 0056). With a single carrying over, only the usual pairs."""
+    from types import SimpleNamespace
+
+    failed, agree = ("gain_over_10pct",), ("gain_over_10pct", "train_and_validation_agree")
+    rate = _cand("rate-dependence", 0.024, 0.25, False, agree)
+    creep = _cand("creep", 0.05, 0.12, False, agree)
+    delay = _cand("delay", -0.001, 0.001, False, failed)
+    dynamics = _cand("dynamics", 0.039, 0.02, False, failed)
+    base = SimpleNamespace(metrics={"validation": {"rmse": 4.29}})
+    names = [[m.effect for m in p] for p in pairs_to_try([rate, dynamics, creep, delay], base, 0.0765)]
+    assert names == [["rate-dependence", "creep"], ["rate-dependence", "delay"], ["dynamics", "delay"],
+                     ["creep", "delay"]], names
+    assert pairs_to_try([rate, dynamics, creep, delay], base, 1.0) == [[rate, creep]]  # near the noise
+    carries = _cand("temperature", 0.2, 0.2, False, ("blocks_p_below_0.01",))
+    names = [[m.effect for m in p] for p in pairs_to_try([rate, carries, delay], base, 0.0765)]
+    assert names == [["rate-dependence", "temperature"]], names
 
 
 def test_pair_specs():

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.replication import BLOCK_CHECK, HELD_BACK_CHECK, needs_replication, replication_level, settle
+from hilbench.diagnosis.replication import (BLOCK_CHECK, HELD_BACK_CHECK, REPLICATION_FOLDS, held_back_folds,
+                                            needs_replication, replication_level, settle)
 from hilbench.diagnosis.significance import block_tests
 from hilbench.diagnosis.verdict import Candidate, check_reason
 
@@ -92,3 +93,18 @@ def test_a_candidate_the_held_back_rows_make_significant_says_so_in_its_explanat
     refused = _candidate(FAILED_BLOCKS, 0.05, blocks_improved=[15, 20])
     settle(refused, held, 1.0, 0.95, 4000)  # 5 % on the held-back rows: under MIN_GAIN
     assert not refused.significant and "significant on two" not in refused.reasoned_explanation()
+
+
+def test_the_folds_hold_back_every_training_row_but_the_first_blocks_once():
+    """Cross-validation over the training rows (decision 0056): each fold holds back about 1 -
+    INNER_SPLIT of them in interleaved blocks, neighbouring blocks in different folds, the first
+    block (where the model's memory starts) in none; rows outside training are never held back."""
+    train = np.zeros(1100, bool)
+    train[:1000] = True
+    folds = held_back_folds(train)
+    assert len(folds) == REPLICATION_FOLDS == 5
+    count = np.sum(folds, axis=0)
+    assert count.max() == 1 and not count[:100].any() and count[100:1000].all() and not count[1000:].any()
+    assert [int(f.sum()) for f in folds] == [200, 200, 200, 200, 100]
+    assert np.flatnonzero(folds[0])[[0, -1]].tolist() == [100, 699]  # blocks 1 and 6: it spans the record
+    assert not any(f.any() for f in held_back_folds(np.ones(5, bool)))  # fewer rows than blocks: none
