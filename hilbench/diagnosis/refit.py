@@ -43,7 +43,7 @@ from hilbench.diagnosis.rate_calibration import RatePlan, calibrated_spec
 from hilbench.errors import UserError
 from hilbench.identify.dataset import as_dataset
 from hilbench.identify.fitting import FitResult, assign_roles, fit
-from hilbench.identify.sweep import interleaved
+from hilbench.identify.sweep import interleaved, reversals
 from hilbench.models.model import split_spec
 
 
@@ -244,6 +244,8 @@ def choose_by_inner_split(paths: Any, specs: list[str], kw: dict[str, Any], star
     scores, fitted = [], []
     for s in specs:
         result = fit(inner_data, s, train_fraction=inner, start_from=start_from)
+        if fit_rows_too and not scores and not inner_rows_loop(result, user):
+            return specs[0]
         held_back = [r.validation & u.train for r, u in zip(result.runs, user)]
         scores.append(inner_rmse(result, held_back))
         fitted.append(result.metrics["train"]["rmse"])
@@ -252,6 +254,25 @@ def choose_by_inner_split(paths: Any, specs: list[str], kw: dict[str, Any], star
         return specs[0]
     best = min(richer, key=lambda k: scores[k])
     return specs[best] if scores[best] < (1.0 - T.RICHER_FORM_MARGIN) * scores[0] else specs[0]
+
+
+def inner_rows_loop(result: FitResult, user: list[Any]) -> bool:
+    """Whether the inner fit's rows (``result``'s training rows) turn the input INNER_MIN_REVERSALS
+    times in some run, counted against the span of the user's training rows: a loop family shows
+    its shape on loops. An inner fit that saw a power-on step and a hold predicts the held-back
+    rows by whatever each family makes of a step, not by the loop's shape (randomized seed 4042:
+    play loops from a linear start, training a step, a hold and the first cycle of a sine; ``duhem-d``
+    won the held-back cycle and validated at 2.41 um against the linear base's 2.16, where ``pi``
+    validates at 0.093 um; decision 0057)."""
+    for r, u in zip(result.runs, user):
+        rows = r.train & u.train
+        if not rows.any() or not u.train.any():
+            continue
+        x = u.data.input[u.train]
+        span = float(np.ptp(x[np.isfinite(x)])) if np.isfinite(x).any() else 0.0
+        if reversals(u.data.input[rows], span) >= T.INNER_MIN_REVERSALS:
+            return True
+    return False
 
 
 def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], plan: RatePlan | None) -> FitResult:

@@ -71,6 +71,9 @@ CREEP_MIN_HOLD_S = 0.2
 #: the rest judge; the richer form must lower that error by RICHER_FORM_MARGIN.
 INNER_SPLIT = 0.8
 RICHER_FORM_MARGIN = 0.1
+#: A loop family is judged on an inner split only when the inner fit's rows turn the input this
+#: many times (two turns close a loop): rows that only step and hold show no loop shape to learn.
+INNER_MIN_REVERSALS = 2
 
 #: The rate forms are compared on held-back rows whose drive frequency lies within the inner fit's
 #: own, widened by this factor for the turning-point estimator's jitter (decision 0050).

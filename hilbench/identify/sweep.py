@@ -71,6 +71,16 @@ def half_cycles(u: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
     return (ext[1:] + ext[:-1]) // 2, fs / (2.0 * np.diff(ext))
 
 
+def reversals(u: np.ndarray, span: float) -> int:
+    """How many times the input ``u`` turns (Schmitt trigger with a band of REVERSAL_BAND of ``span``,
+    the input unit): two turns close a loop. Non-finite samples are left out."""
+    u = np.ascontiguousarray(u[np.isfinite(u)], dtype=np.float64)
+    if u.size < 3 or not span > 0.0:
+        return 0
+    out = np.empty(u.size, np.int64)
+    return int(_reversals(u, REVERSAL_BAND * span, out))
+
+
 def sweeps_past_split(u: np.ndarray, fs: float, train: np.ndarray, validation: np.ndarray) -> tuple[float, float] | None:
     """(lowest, highest) drive frequency of the run when its validation rows reach rates SWEEP_RATIO
     beyond those of its training rows, else None."""
@@ -107,4 +117,4 @@ def interleaved(kept: np.ndarray, train_fraction: float, blocks: int = BLOCKS) -
     return train, validation
 
 
-__all__ = ["half_cycles", "interleaved", "sweeps_past_split", "validation_blocks"]
+__all__ = ["half_cycles", "interleaved", "reversals", "sweeps_past_split", "validation_blocks"]
