@@ -50,7 +50,8 @@ from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.replication import replicate
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
-from hilbench.diagnosis.verdict import Candidate, judge, rank, verdict
+from hilbench.diagnosis.ranking import rank
+from hilbench.diagnosis.verdict import Candidate, judge, verdict
 from hilbench.diagnosis.where import where
 from hilbench.diagnosis.workers import check_jobs, run_tasks
 from hilbench.identify.dataset import Dataset, as_dataset

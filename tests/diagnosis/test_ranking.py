@@ -1,4 +1,4 @@
-"""How :func:`hilbench.diagnosis.verdict.rank` breaks ties between candidates whose validation errors
+"""How :func:`hilbench.diagnosis.ranking.rank` breaks ties between candidates whose validation errors
 the block test cannot separate: by the residual's pattern first, then by parsimony, and only when
 the errors are really equal."""
 
@@ -10,7 +10,8 @@ import numpy as np
 
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import parity_overlap
-from hilbench.diagnosis.verdict import Candidate, rank
+from hilbench.diagnosis.ranking import rank
+from hilbench.diagnosis.verdict import Candidate
 
 N = 4000
 
