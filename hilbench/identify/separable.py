@@ -34,6 +34,7 @@ from hilbench.models.spec import check_fit_memory
 class WeightSolution:
     weights: np.ndarray
     sse: float
+    residual: np.ndarray | None = None  # A w - y, kept for the search (it needs it at every evaluation)
 
 
 def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -67,7 +68,7 @@ def solve_weights(A: np.ndarray, y: np.ndarray, lower: np.ndarray, upper: np.nda
             ws = _least_squares_with_inequalities(R, c, lo, hi, rows)
     w = ws / scale
     r = A @ w - y
-    return WeightSolution(w, float(r @ r))
+    return WeightSolution(w, float(r @ r), r)
 
 
 def _bounded(R: np.ndarray, c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -184,12 +185,18 @@ class _Problem:
         if key != self._static_key:
             self._static_blocks = self._columns.sequence()
             self._static_key = key
-        rows, lower, upper, names = [], None, None, []
-        for run, blocks, mask in zip(self.runs, self._static_blocks, self.masks):
-            if mask.any():  # runs without training rows only carry the memory (static part)
-                A, names, lower, upper = self.model.apply_dynamics(run, blocks, np.flatnonzero(mask))
-                rows.append(A)
-        return (rows[0] if len(rows) == 1 else np.vstack(rows)), lower, upper, names
+        # every run's training rows go straight into one matrix (runs without training rows only
+        # carry the memory: their static part)
+        lower, upper, names = None, None, []
+        rows = [np.flatnonzero(mask) for mask in self.masks]
+        width = sum(b.matrix.shape[1] for b in self._static_blocks[0])
+        A = np.empty((sum(r.size for r in rows), width))
+        at = 0
+        for run, blocks, r in zip(self.runs, self._static_blocks, rows):
+            if r.size:
+                _, names, lower, upper = self.model.apply_dynamics(run, blocks, r, out=A[at : at + r.size])
+                at += r.size
+        return A, lower, upper, names
 
     def solve(self, theta: np.ndarray | None = None) -> tuple[WeightSolution, np.ndarray, list[str]]:
         if theta is not None:
@@ -209,7 +216,7 @@ class _Problem:
         sol, A, _ = self.solve(self.to_theta(x))
         if not math.isfinite(sol.sse):
             return np.full(self.y.shape, 1e6 * (float(np.std(self.y)) + 1.0))
-        return A @ sol.weights - self.y
+        return sol.residual if sol.residual is not None else A @ sol.weights - self.y
 
 
 def _through_last_training_row(runs: list[RunData], masks: list[np.ndarray]) -> tuple[list[RunData], list[np.ndarray]]:

@@ -345,11 +345,9 @@ class Creep(Component):
                 mat = np.empty((v.size, len(cols) + taus.size * p))
                 for k, col in enumerate(cols):
                     mat[:, k] = col
-                out = np.empty_like(x)
                 for k, tau in enumerate(taus):
-                    MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
-                    c = len(cols) + k * p
-                    np.subtract(out, x, out=mat[:, c : c + p])
+                    MK.lowpass_drift_into(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], mat,
+                                          len(cols) + k * p)
                     names += [f"{b.names[j]}*creep[tau={tau:.3g}s]" for b, keep in hyst for j in keep]
                 # a copy's weight is (creep gain >= 0: a passive material's retardation spectrum, as
                 # in the bank) x (its column's weight): >= 0 where that weight is; free copies of
@@ -376,11 +374,8 @@ class Creep(Component):
             state["lp_h"] = np.repeat(x[:1], taus.size, axis=0)
         mat = np.zeros((x.shape[0], 1 + x.shape[1]))
         mat[:, 0] = input_law
-        out = np.empty_like(x)
-        for k, tau in enumerate(taus):
-            MK.lowpass_columns(x, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp_h"][k], out)
-            out -= x
-            mat[:, 1:] += spectrum[k] * out
+        alphas = np.array([1.0 - math.exp(-1.0 / (s.fs * tau)) for tau in taus])
+        MK.lowpass_drift_sum(x, alphas, np.ascontiguousarray(spectrum, dtype=float), state["lp_h"], mat, 1)
         names = ["creep[log]"] + [f"{b.names[j]}*creep[log]" for b, keep in hyst for j in keep]
         lower = [0.0] + [0.0 if b.lower[j] >= 0.0 else -np.inf for b, keep in hyst for j in keep]
         return Columns.of(mat, names, lower=lower)
@@ -544,13 +539,8 @@ def _scale_hysteresis(blocks: list[Columns], gain: np.ndarray) -> None:
     """Scale every hysteresis column but the offset by ``gain`` (one value per row), in place: the
     rate-independent loop y_RI times k (003 eq. 9). The blocks are this evaluation's own arrays."""
     for block in blocks:
-        if not block.hysteresis:
-            continue
-        keep = [j for j, name in enumerate(block.names) if name != "offset"]
-        if len(keep) == block.matrix.shape[1]:
-            block.matrix *= gain[:, None]
-        else:
-            block.matrix[:, keep] *= gain[:, None]
+        if block.hysteresis:
+            MK.scale_columns(block.matrix, gain, np.array([name != "offset" for name in block.names], dtype=bool))
 
 
 class AuxChannel(Component):

@@ -24,6 +24,10 @@ __all__ = [
     "turning_point_frequency",
     "N_TP",
     "fractional_delay",
+    "scale_columns",
+    "gather_rows_into",
+    "lowpass_drift_into",
+    "lowpass_drift_sum",
 ]
 
 
@@ -84,13 +88,53 @@ def lowpass_block(u: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarra
 
 
 @njit(cache=True)
-def lowpass_columns(x: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarray) -> None:
-    """:func:`lowpass_block` on every column of x (n, p) in one pass over the rows; state (p,)."""
+def lowpass_drift_into(x: np.ndarray, alpha: float, state: np.ndarray, out: np.ndarray, first: int) -> None:
+    """:func:`lowpass_block` on every column of x (n, p) in one pass over the rows (state (p,)),
+    its drift (low-pass minus input) written straight into the columns ``first .. first + p`` of
+    ``out`` (n, >= first + p): no intermediate array per time constant (creep after the hysteresis)."""
     n, p = x.shape
     for k in range(n):
         for j in range(p):
             state[j] += alpha * (x[k, j] - state[j])
-            out[k, j] = state[j]
+            out[k, first + j] = state[j] - x[k, j]
+
+
+@njit(cache=True)
+def lowpass_drift_sum(x: np.ndarray, alphas: np.ndarray, weights: np.ndarray, state: np.ndarray,
+                      out: np.ndarray, first: int) -> None:
+    """``out[:, first + j] += sum_t weights[t] * (lowpass_t(x[:, j]) - x[:, j])`` over a bank of
+    low-passes (alphas (T,), state (T, p)), added in the order of the bank, in one pass over the
+    rows: a logarithmic creep law on every hysteresis column."""
+    n, p = x.shape
+    for k in range(n):
+        for t in range(alphas.shape[0]):
+            a = alphas[t]
+            w = weights[t]
+            for j in range(p):
+                state[t, j] += a * (x[k, j] - state[t, j])
+                out[k, first + j] += w * (state[t, j] - x[k, j])
+
+
+@njit(cache=True)
+def gather_rows_into(x: np.ndarray, rows: np.ndarray, out: np.ndarray, first: int) -> None:
+    """``out[:, first .. first + p] = x[rows]`` for x (n, p), without the intermediate copy."""
+    p = x.shape[1]
+    for r in range(rows.shape[0]):
+        k = rows[r]
+        for j in range(p):
+            out[r, first + j] = x[k, j]
+
+
+@njit(cache=True)
+def scale_columns(matrix: np.ndarray, gain: np.ndarray, scaled: np.ndarray) -> None:
+    """``matrix[:, j] *= gain`` for every column j with ``scaled[j]``, in place, in one pass over
+    the rows (numpy's masked form gathers, multiplies and scatters a copy)."""
+    n, p = matrix.shape
+    for k in range(n):
+        g = gain[k]
+        for j in range(p):
+            if scaled[j]:
+                matrix[k, j] *= g
 
 
 @njit(cache=True)

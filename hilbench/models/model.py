@@ -227,12 +227,13 @@ class Model:
         return self.apply_dynamics(run, self.static_columns(run))
 
     def apply_dynamics(
-        self, run: RunData, blocks: list[Columns], rows: np.ndarray | None = None
+        self, run: RunData, blocks: list[Columns], rows: np.ndarray | None = None, out: np.ndarray | None = None
     ) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
-        """Stack the static blocks, apply the dynamics and the delay; ``rows`` selects rows.
+        """Stack the static blocks, apply the dynamics and the delay; ``rows`` (indices) selects rows.
 
         Dynamics and delay are linear and time invariant, so their order does not matter; the
-        delay is applied last so that only the wanted rows are computed.
+        delay is applied last so that only the wanted rows are computed. ``out``: a C-contiguous
+        array of the result's shape to fill (a stretch of several runs' matrix), else a new one.
         """
         names = [n for b in blocks for n in b.names]
         lower = np.concatenate([b.lower for b in blocks])
@@ -245,19 +246,23 @@ class Model:
         zi = sps.lfilter_zi(*ba) if ba is not None else None  # steady state at each column's first value
         delay = self.effect("delay")
         d = delay.param("seconds") * run.sample_rate_hz if delay is not None else None
-        parts = []
+        n = len(run) if rows is None else rows.shape[0]
+        matrix = np.empty((n, len(names))) if out is None else out
+        first = 0
         for block in blocks:
             m = block.matrix
+            p = m.shape[1]
             if ba is not None:
                 m = MK.filter_columns(ba[0], ba[1], np.ascontiguousarray(m), np.outer(zi, m[0]))
             if d is not None:
-                m = MK.delay_gather(np.ascontiguousarray(m), rows, d) if rows is not None \
-                    else MK.delay_rows(np.ascontiguousarray(m), d)
+                matrix[:, first : first + p] = MK.delay_gather(np.ascontiguousarray(m), rows, d) \
+                    if rows is not None else MK.delay_rows(np.ascontiguousarray(m), d)
             elif rows is not None:
-                m = m[rows]
-            parts.append(m)
-        matrix = parts[0] if len(parts) == 1 else np.hstack(parts)
-        return np.ascontiguousarray(matrix), names, lower, upper
+                MK.gather_rows_into(np.ascontiguousarray(m), rows, matrix, first)
+            else:
+                matrix[:, first : first + p] = m
+            first += p
+        return matrix, names, lower, upper
 
     # -- simulation ----------------------------------------------------------------------------------
     def simulate(self, run: RunData) -> np.ndarray:
