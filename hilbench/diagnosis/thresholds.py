@@ -58,10 +58,17 @@ AGREE_TRAIN_OVER_VALIDATION = 0.25
 #: With a rate plan, training may not get worse than this fraction (the calibrated shape is fixed).
 TRAINING_WORSE_TOLERANCE = 0.01
 
-#: creep is significant only if the residual drifts along holds by this fraction of its rms (after
-#: the first CREEP_SETTLE_S of each hold): the physical signature, which a refit alone can fake
-#: (the creep low-pass also buys phase lag on delay or dynamics data).
+#: creep is significant only if the residual drifts along holds (after the first CREEP_SETTLE_S of
+#: each hold) by this fraction of its rms: the physical signature, which a refit alone can fake (the
+#: creep low-pass also buys phase lag on delay or dynamics data) ...
 CREEP_MIN_DRIFT = 0.2
+#: ... or, where other errors fill the rms, by at least this many standard errors the sensor's noise
+#: leaves on a drift ...
+CREEP_MIN_DRIFT_OVER_NOISE = 3.0
+#: ... and the creep refit removes at least this fraction of that drift (most of it): another slow
+#: cause along holds (a ringing, a temperature or load change) leaves most of its drift to creep's
+#: refit (decision 0059).
+CREEP_MIN_DRIFT_REMOVED = 0.5
 #: A delay or a resonance settles within this time after a step; creep keeps drifting after it.
 CREEP_SETTLE_S = 0.1
 #: Creep is testable only if the input holds still at least this long somewhere.

@@ -27,7 +27,7 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain
 from hilbench.diagnosis.rate_calibration import RatePlan
 from hilbench.diagnosis.refit import fit_effect
-from hilbench.diagnosis.rows import ResidualRows
+from hilbench.diagnosis.rows import ResidualRows, residual_rows
 from hilbench.diagnosis.significance import improvement_test
 from hilbench.diagnosis.testability import channel_reach
 from hilbench.identify.fitting import FitResult
@@ -291,12 +291,22 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
                         "contradict it"}
     if key == "drift_on_holds":
         drift = float(ev.get("drift_over_rms", math.nan))
+        z, removed = float(ev.get("drift_over_noise", math.nan)), float(ev.get("drift_removed", math.nan))
+        required = (f"drift_over_rms >= {T.CREEP_MIN_DRIFT:g}, or drift_over_noise >= "
+                    f"{T.CREEP_MIN_DRIFT_OVER_NOISE:g} and drift_removed >= {T.CREEP_MIN_DRIFT_REMOVED:g}")
         if not math.isfinite(drift):  # carried over from a member's verdict (a pair)
-            return {"check": key, "measured": None, "required": f">= {T.CREEP_MIN_DRIFT:g}",
+            return {"check": key, "measured": None, "required": required,
                     "text": "the residual does not drift along holds as creep's signature needs"}
-        return {"check": key, "measured": drift, "required": f">= {T.CREEP_MIN_DRIFT:g}",
-                "text": f"the residual drifts along holds by {drift:.2g}x its rms, less than the "
-                        f"{T.CREEP_MIN_DRIFT:g}x creep's signature needs"}
+        text = (f"the residual drifts along holds by {drift:.2g}x its rms, less than the {T.CREEP_MIN_DRIFT:g}x "
+                "creep's signature needs")
+        if math.isfinite(z) and z < T.CREEP_MIN_DRIFT_OVER_NOISE:
+            text += (f", and by {z:.2g}x the noise's standard error on a drift, less than the "
+                     f"{T.CREEP_MIN_DRIFT_OVER_NOISE:g}x that could stand for it")
+        elif math.isfinite(removed):
+            text += (f"; creep's refit removes {100 * removed:.2g} % of that drift, less than the "
+                     f"{100 * T.CREEP_MIN_DRIFT_REMOVED:g} % that could stand for it")
+        return {"check": key, "measured": {"drift_over_rms": drift, "drift_over_noise": z, "drift_removed": removed},
+                "required": required, "text": text}
     if key.startswith("validation_") and key.endswith("x_lower"):  # the wrong-base check
         ratio = old_v / new_v if new_v > 0 else math.inf
         return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
@@ -387,6 +397,8 @@ def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, no
     check = E.effect(effect).evidence_check
     if check is not None:
         rule = EVIDENCE_CHECKS[check]
+        if rule.after_refit is not None:
+            evidence.update(rule.after_refit(rows, residual_rows(new, "all"), float(noise)))
         checks[rule.key] = rule.holds(evidence)
         if checks[rule.key] and not all(checks.values()):
             # the physical signature is there; say so, since the refit's verdict alone would hide it

@@ -162,6 +162,11 @@ CASES = [
     # that never turns the input cannot choose a loop shape, so pi stays and validates at 0.093 um
     # (decision 0057)
     pytest.param(4042, "hysteresis", "play", id="4042-hysteresis-play-step-and-hold-linear"),
+    # logarithmic creep under a PMPI base: creep's refit validates 90 % lower, but the loops fitted
+    # without creep miss by more during motion than the drift along any hold, which was 0.19x the rms
+    # against the 0.2x required, and rate-dependence ranked first; the drift is 8.5x the noise's
+    # standard error and creep's refit removes 92 % of it (decision 0059)
+    pytest.param(4586, "creep", "logarithmic", id="4586-creep-logarithmic-pmpi"),
 ]
 
 
