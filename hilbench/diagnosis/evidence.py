@@ -81,11 +81,11 @@ def _drift_on_holds(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any
             f"({ev['drift_over_rms']:.2g}x the rms error) and decays after each step: creep"), ev
 
 
-def drift_after_refit(rows: ResidualRows, refit: ResidualRows, noise: float) -> dict[str, Any]:
+def drift_after_refit(rows: ResidualRows, refit_e: np.ndarray, noise: float) -> dict[str, Any]:
     """What a refit did to the drift along holds: the base's mean absolute drift over the noise's
     standard error on it (a difference of two means of HOLD_END_ROWS samples of the sensor's noise),
-    and the fraction of that drift the refit's residual ``refit`` (on the same rows) no longer has."""
-    before, after = np.abs(hold_drifts(rows)), np.abs(hold_drifts(rows, refit.e))
+    and the fraction of that drift the refit's residual ``refit_e`` (on the same rows) no longer has."""
+    before, after = np.abs(hold_drifts(rows)), np.abs(hold_drifts(rows, refit_e))
     if not before.size or before.size != after.size:
         return {"drift_over_noise": 0.0, "drift_removed": 0.0}
     standard_error = float(noise) * math.sqrt(2.0 / HOLD_END_ROWS)
@@ -214,7 +214,7 @@ class EvidenceCheck:
     present: str  # what to say when the pattern is there but the refit alone does not pay
     #: evidence from the base's rows, the refit's residual on the same rows and the noise floor
     #: (output unit), added before ``holds`` is asked
-    after_refit: Callable[[ResidualRows, ResidualRows, float], dict[str, Any]] | None = None
+    after_refit: Callable[[ResidualRows, np.ndarray, float], dict[str, Any]] | None = None
 
 
 #: check name (hilbench.effects) -> the check

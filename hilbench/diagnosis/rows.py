@@ -14,6 +14,7 @@ import numpy as np
 from hilbench.diagnosis.input_motion import motion
 from hilbench.diagnosis.noise import residual_noise_floor, sensor_noise
 from hilbench.errors import UserError
+from hilbench.identify.dataset import FitRun
 from hilbench.identify.fitting import FitResult
 
 
@@ -41,6 +42,22 @@ def smooth(x: np.ndarray, k: int) -> np.ndarray:
     return np.convolve(x, np.ones(k) / k, mode="same")
 
 
+def _rows_of(run: FitRun, rows: str) -> np.ndarray | None:
+    """The mask of a run's rows that :func:`residual_rows` takes (``rows``: "validation" or "all"),
+    or None for a run that gives none."""
+    m = (run.validation if rows == "validation" else run.validation | run.train) & np.isfinite(run.data.output)
+    if not m.any() or run.simulated is None or run.simulated.size == 0:
+        return None
+    return m
+
+
+def residual_errors(result: FitResult, rows: str = "validation") -> np.ndarray:
+    """The ``e`` of :func:`residual_rows` alone (the same rows in the same order, model - measured),
+    without the input's motion and the output's derivatives: a refit's residual on a base's rows."""
+    masks = [(r, _rows_of(r, rows)) for r in result.runs]
+    return np.concatenate([(r.simulated - r.data.output)[m] for r, m in masks if m is not None] or [np.zeros(0)])
+
+
 def residual_rows(result: FitResult, rows: str = "validation") -> ResidualRows:
     parts: dict[str, list[np.ndarray]] = {k: [] for k in ("e", "u", "du", "y", "dy", "d2y", "since", "direction",
                                                              "run", "t")}
@@ -52,8 +69,8 @@ def residual_rows(result: FitResult, rows: str = "validation") -> ResidualRows:
             common = set(r.data.aux) if common is None else common & set(r.data.aux)
     keys = []
     for k, r in enumerate(result.runs):
-        m = (r.validation if rows == "validation" else r.validation | r.train) & np.isfinite(r.data.output)
-        if not m.any() or r.simulated is None or r.simulated.size == 0:
+        m = _rows_of(r, rows)
+        if m is None:
             continue
         fs = r.data.sample_rate_hz
         sig = motion(r.data.input, fs, span)

@@ -27,7 +27,7 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain
 from hilbench.diagnosis.rate_calibration import RatePlan
 from hilbench.diagnosis.refit import fit_effect
-from hilbench.diagnosis.rows import ResidualRows, residual_rows
+from hilbench.diagnosis.rows import ResidualRows, residual_errors
 from hilbench.diagnosis.significance import improvement_test
 from hilbench.diagnosis.testability import channel_reach
 from hilbench.identify.fitting import FitResult
@@ -398,7 +398,7 @@ def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, no
     if check is not None:
         rule = EVIDENCE_CHECKS[check]
         if rule.after_refit is not None:
-            evidence.update(rule.after_refit(rows, residual_rows(new, "all"), float(noise)))
+            evidence.update(rule.after_refit(rows, residual_errors(new, "all"), float(noise)))
         checks[rule.key] = rule.holds(evidence)
         if checks[rule.key] and not all(checks.values()):
             # the physical signature is there; say so, since the refit's verdict alone would hide it

@@ -54,9 +54,9 @@ def test_a_refit_that_removes_the_drift_stands_for_creep_and_one_that_leaves_it_
     rng = np.random.default_rng(0)
     e = _creep() + rng.normal(0.0, NOISE, _creep().size)
     rows = _rows(e)
-    removed = drift_after_refit(rows, _rows(rng.normal(0.0, NOISE, e.size)), NOISE)
+    removed = drift_after_refit(rows, rng.normal(0.0, NOISE, e.size), NOISE)
     assert removed["drift_over_noise"] > 50 and removed["drift_removed"] > 0.9
-    left = drift_after_refit(rows, _rows(0.8 * e), NOISE)  # a refit that keeps 80 % of the drift
+    left = drift_after_refit(rows, 0.8 * e, NOISE)  # a refit that keeps 80 % of the drift
     assert left["drift_removed"] == pytest.approx(0.2, abs=0.01)
     rule = EVIDENCE_CHECKS["drift-on-holds"]
     small = {"drift_over_rms": 0.1}  # other errors fill the rms
@@ -66,7 +66,7 @@ def test_a_refit_that_removes_the_drift_stands_for_creep_and_one_that_leaves_it_
 def test_noise_alone_does_not_drift():
     rng = np.random.default_rng(1)
     rows = _rows(rng.normal(0.0, NOISE, 4 * int(1.2 * FS)))
-    ev = drift_after_refit(rows, _rows(rng.normal(0.0, NOISE, rows.e.size)), NOISE)
+    ev = drift_after_refit(rows, rng.normal(0.0, NOISE, rows.e.size), NOISE)
     # a difference of two means of HOLD_END_ROWS noise samples: about 0.8 standard errors on average
     assert ev["drift_over_noise"] < 3.0
     assert not EVIDENCE_CHECKS["drift-on-holds"].holds({"drift_over_rms": 0.05, **ev})
