@@ -244,9 +244,10 @@ class _ColumnCache:
 
     A finite-difference Jacobian moves one parameter at a time, so the components before the moved
     one are not recomputed (creep's low-passes of every hysteresis column while a later effect's
-    parameter moves, say). Blocks a later component scales in place (a loop gain, decision 0018)
-    are handed out as copies; the memory each component ends a run with is kept with its block, so
-    a chained run starts from it as if it had been computed."""
+    parameter moves, say). Blocks a later component scales in place (a loop gain, decision 0018:
+    ``Component.scales_hysteresis``) are handed out as copies, the others as they are; the memory
+    each component ends a run with is kept with its block, so a chained run starts from it as if it
+    had been computed."""
 
     def __init__(self, model: Model, runs: list[RunData]):
         self.model = model
@@ -268,6 +269,9 @@ class _ColumnCache:
     def sequence(self) -> list[list[Any]]:
         model = self.model
         keys = self._prefix_keys()
+        # a hysteresis block is copied only if a later component scales it in place
+        scaled_later = [any(c.scales_hysteresis for c in model.components[i + 1:])
+                        for i in range(len(model.components))]
         out = []
         for r, (run, states) in enumerate(model._walk(self.runs)):
             signals = None
@@ -276,7 +280,7 @@ class _ColumnCache:
                 hit = self.entries.get((r, i))
                 if hit is not None and hit[0] == keys[i]:
                     block = hit[1]
-                    if block is not None and block.hysteresis:
+                    if block is not None and block.hysteresis and scaled_later[i]:
                         block = replace(block, matrix=block.matrix.copy())
                     state.clear()
                     state.update(copy.deepcopy(hit[2]))
@@ -284,7 +288,8 @@ class _ColumnCache:
                     if signals is None:
                         signals = model._signals(run, model._delayed(run))
                     block = c.columns(signals, state, blocks)
-                    kept = block if block is None or not block.hysteresis else replace(block, matrix=block.matrix.copy())
+                    kept = (replace(block, matrix=block.matrix.copy())
+                            if block is not None and block.hysteresis and scaled_later[i] else block)
                     self.entries[(r, i)] = (keys[i], kept, copy.deepcopy(state))
                 if block is not None:
                     blocks.append(block)

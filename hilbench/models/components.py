@@ -103,6 +103,9 @@ class Component:
     summary: ClassVar[str] = ""
     #: the options a spec may give, typed and bounded (checked by hilbench.models.spec)
     options_schema: ClassVar[dict[str, Option]] = {}
+    #: ``columns`` scales the hysteresis blocks before it in place (a gain on the whole loop,
+    #: decision 0018): a cache of those blocks must hand out copies
+    scales_hysteresis: ClassVar[bool] = False
 
     def __init__(self, options: dict[str, Any] | None = None):
         self.options = dict(options or {})

@@ -413,6 +413,7 @@ class RateDependence(Component):
 
     name = "rate-dependence"
     summary = "loop gain and width change with input rate: velocity damping, frequency polynomials (003)"
+    scales_hysteresis = True  # the loop gain k (003 eq. 9; decision 0018)
     options_schema = {"form": Option("choice", default="auto", choices=("auto", "damping", "frequency"),
                                      doc="damping (003 eq. 6), frequency (k(f), c(f), eq. 8-13) or auto"),
                       "order": Option("int", default=3, minimum=1, maximum=8, doc="order of the frequency polynomials"),
@@ -551,6 +552,7 @@ class AuxChannel(Component):
     hysteresis column (decision 0019)."""
 
     role = "effect"
+    scales_hysteresis = True  # the loop gain k (003 eq. 9; decision 0018)
     summary = "dependence on a recorded channel: offset and gain proportional to its change"
     #: the gain's change per standard deviation of the channel in training, at most (either sign)
     MAX_GAIN_PER_STD = 0.5
