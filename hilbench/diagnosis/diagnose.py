@@ -48,6 +48,7 @@ from hilbench.diagnosis.base_polish import polished_base
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.replication import replicate
+from hilbench.diagnosis.resolution import check_resolution
 from hilbench.diagnosis.rows import noise_floor, residual_rows
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.ranking import rank
@@ -133,6 +134,7 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
         # where the report is the base, not small effects on top of it (issue item 5)
         replicate(paths, base, cands, kw, jobs)
     rank(cands)
+    check_resolution(paths, base, cands, noise, kw, jobs)  # the two leaders' order on a finer base
     base.notes.extend(n for n in plan.notes if n not in base.notes)  # what the training rows cannot identify
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
 

@@ -150,3 +150,8 @@ PAIR_MAX_MEMBERS = 3
 #: every hysteresis column with their own weights trained 0.005 % of the gain better than the
 #: one-weight Wiener knee and validated 6x worse (randomized seed 969).
 FORM_TIE = 0.01
+
+#: The order of the two leading effects is checked on a finer base (diagnosis/resolution.py, decision
+#: 0060) with this many times the base's default operators: at 2x an even v^4 on a one-sided play rig
+#: still ranked behind a saturation, at 3x it reached the noise and led (decision 0054's table).
+RESOLUTION_FACTOR = 3

@@ -1,0 +1,103 @@
+"""The base's resolution must not choose between two effects: the leader and its closest rival are
+refitted on a finer base when the leader leaves much of the training error unexplained.
+
+A play-operator base (``pi``, ``pi1``, ``mpi``, ``pd``) places its n thresholds evenly, 10 by
+default; between two of them the model's loop is straight where a real loop bends. That residual
+is structured in the input, and an effect with columns in the input or in the hysteresis output
+(an even term, a saturation of the output or of the drive) takes it up together with its own share.
+Which of two such effects validates better can then depend on n rather than on the physics
+(decision 0054's table: an even v^4 on ``pi1`` ranks behind a saturation at 10 and 20 operators and
+ahead of it at 30, where the truth reaches the noise). Judging every effect on a finer base moved
+as many cases one way as the other (0054); this check only asks whether the *order of the two
+leaders* survives a finer base, when the data say the base's resolution may matter:
+
+* the leader's refit still trains above the noise band (:func:`hilbench.diagnosis.verdict.noise_band`,
+  the test a validation error passes to hold anything to explain: a refit at the noise has no
+  structured error left for the resolution to shape), and
+* the rival, the next significant single effect, validates within TIE_MEAN_SQUARE_RATIO of the
+  leader's mean square (a decisive lead is not a question of resolution).
+
+Both effects are then refitted on the base at RESOLUTION_FACTOR x its operators, each in the form
+the data choose there, and the rival goes first when its finer refit validates more than MIN_GAIN
+below the leader's. The user's base is unchanged: the finer refits only order the candidates
+(docs/decisions/0060).
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.refit import fit_effect, spec_parts
+from hilbench.diagnosis.verdict import Candidate, relative_gain, rms, validation_errors
+from hilbench.diagnosis.workers import run_tasks
+from hilbench.identify.dataset import Dataset
+from hilbench.identify.fitting import FitResult, fit
+from hilbench.models.spec import split_spec
+
+#: The bases whose resolution is their number of evenly placed thresholds, and nothing else searched
+#: per operator (``pmpi`` carries one searched eta per operator: 30 of them are another search).
+FINER_BASES: dict[str, int] = {"pi": 10, "pi1": 10, "mpi": 10, "pd": 10}
+
+
+def finer_spec(spec: str) -> str | None:
+    """``spec`` with its base at RESOLUTION_FACTOR x the default operators (``pi+saturation`` ->
+    ``pi(n=30)+saturation``); None when the base is not in FINER_BASES or the user set its ``n``."""
+    parts = spec_parts(spec)
+    name, options = split_spec(parts[0])[0]
+    if name not in FINER_BASES or "n" in options:
+        return None
+    n = T.RESOLUTION_FACTOR * FINER_BASES[name]
+    inner = ",".join([f"n={n}", *(f"{k}={v}" for k, v in options.items())])
+    return "+".join([f"{name}({inner})", *parts[1:]])
+
+
+def _single(c: Candidate) -> bool:
+    """A significant refit of one effect that the ranking may reorder (not a pair, the base check
+    or a refit calibrated across drive rates, whose spec carries the calibration)."""
+    return (c.significant and c.fitted is not None and "pair" not in c.evidence and c.effect != "base"
+            and "rate_calibration" not in c.evidence)
+
+
+def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], noise: float, kw: dict[str, Any],
+                     jobs: int = 1) -> None:
+    """Reorder ranked ``cands``, refits of ``base``, in place when the finer base puts the rival first (module doc);
+    the leader's evidence records the check either way (``resolution_check``)."""
+    if not cands or not _single(cands[0]) or not noise > 0.0:
+        return
+    leader = cands[0]
+    leader_train = leader.fitted.metrics["train"]["rmse"]
+    band = float(leader.evidence.get("noise_band", T.NOISE_FACTOR * noise))
+    if not leader_train > band:
+        return
+    rival = next((c for c in cands[1:] if _single(c) and c.effect != leader.effect), None)
+    if rival is None:
+        return
+    v_leader, v_rival = rms(validation_errors(leader.fitted)), rms(validation_errors(rival.fitted))
+    if not v_rival**2 <= T.TIE_MEAN_SQUARE_RATIO * v_leader**2:
+        return
+    spec = finer_spec(base.spec)
+    if spec is None:
+        return
+    # each effect in the form the data choose on the finer base: a form chosen at 10 operators may
+    # owe the choice to them as well (seed 3693: v^2 alone chosen over v^2..v^4 at 10, which at 30
+    # validates 2.3x lower)
+    finer = fit(paths, spec, **kw)
+    fine: list[FitResult] = run_tasks([partial(fit_effect, paths, finer, c.effect, kw, None) for c in (leader, rival)],
+                                      jobs, shared=paths.runs)
+    specs = [f.spec for f in fine]
+    f_leader, f_rival = (rms(validation_errors(f)) for f in fine)
+    record = {"over": rival.effect, "specs": specs, "training_rmse": leader_train, "noise_band": band,
+              "validation_rmse": {leader.effect: v_leader, rival.effect: v_rival},
+              "finer_validation_rmse": {leader.effect: f_leader, rival.effect: f_rival}}
+    if relative_gain(f_leader, f_rival) > T.MIN_GAIN:
+        cands.remove(rival)
+        cands.insert(0, rival)
+        rival.evidence["ranked_by_resolution"] = {**record, "over": leader.effect}
+        rival.explanation += (
+            f"; ranked before {leader.effect}, which validated {v_leader:.4g} against its {v_rival:.4g}: on a base "
+            f"of {T.RESOLUTION_FACTOR}x the operators it validates at {f_rival:.4g} against {f_leader:.4g}, so "
+            f"{leader.effect}'s lead came from the base's resolution")
+    else:
+        leader.evidence["resolution_check"] = record

@@ -1,0 +1,106 @@
+"""When the two leading effects are re-judged on a finer base (:mod:`hilbench.diagnosis.resolution`,
+decision 0060): the finer spec, and the conditions under which no refit is made at all. The check's
+effect on whole diagnoses is asserted by randomized cases 4223 and 4711 (tests/diagnosis/test_random_cases.py)."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.resolution import check_resolution, finer_spec
+from hilbench.diagnosis.verdict import Candidate
+
+N = 2000
+
+
+@pytest.mark.parametrize(("spec", "finer"), [
+    ("pi", f"pi(n={10 * T.RESOLUTION_FACTOR})"),
+    ("pi1+saturation(form=knee)+creep", f"pi1(n={10 * T.RESOLUTION_FACTOR})+saturation(form=knee)+creep"),
+    ("mpi", f"mpi(n={10 * T.RESOLUTION_FACTOR})"),
+    ("pd(n_dead_zone=2)+delay", f"pd(n={10 * T.RESOLUTION_FACTOR},n_dead_zone=2)+delay"),
+    ("pi(n=16)+asymmetry", None),  # the user chose the resolution
+    ("pmpi+delay", None),  # one searched eta per operator: not a resolution
+    ("duhem-d", None),
+    ("linear", None),
+])
+def test_finer_spec(spec: str, finer: str | None) -> None:
+    assert finer_spec(spec) == finer
+
+
+def _candidate(effect: str, validation_rmse: float, train_rmse: float, band: float = 1.0) -> Candidate:
+    rng = np.random.default_rng(len(effect))
+    e = rng.normal(0.0, 1.0, N)
+    e *= validation_rmse / np.sqrt(np.mean(e**2))
+    run = SimpleNamespace(key="test", simulated=e, data=SimpleNamespace(output=np.zeros(N)),
+                          validation=np.ones(N, dtype=bool))
+    fitted = SimpleNamespace(spec=f"pi+{effect}", runs=[run], metrics={"train": {"rmse": train_rmse}})
+    return Candidate(effect=effect, spec=f"pi+{effect}", significant=True, expected_gain=0.5,
+                     explanation=f"{effect} helps", evidence={"noise_band": band}, fitted=fitted)  # type: ignore[arg-type]
+
+
+class _NoFits:
+    """Stands for the dataset: any refit would read ``runs`` or be called, and fail the test."""
+
+    @property
+    def runs(self):  # pragma: no cover - reached only when the check wrongly refits
+        raise AssertionError("the check refitted where it should not")
+
+
+BASE = SimpleNamespace(spec="pi")
+
+
+@pytest.mark.parametrize(("leader", "rival", "base"), [
+    # the leader's refit trains within the noise band: nothing structured left for the resolution
+    (_candidate("saturation", 1.0, train_rmse=0.9), _candidate("asymmetry", 1.1, train_rmse=1.5), BASE),
+    # the rival's mean square is more than TIE_MEAN_SQUARE_RATIO x the leader's: a decisive lead
+    (_candidate("saturation", 1.0, train_rmse=3.0), _candidate("asymmetry", 1.5, train_rmse=3.0), BASE),
+    # a base whose resolution the check does not change
+    (_candidate("dynamics", 1.0, train_rmse=3.0), _candidate("delay", 1.1, train_rmse=3.0), SimpleNamespace(spec="pmpi")),
+])
+def test_no_refit_when_the_resolution_cannot_matter(leader, rival, base) -> None:
+    cands = [leader, rival]
+    check_resolution(_NoFits(), base, cands, noise=0.5, kw={})  # type: ignore[arg-type]
+    assert cands == [leader, rival]
+    assert "resolution_check" not in leader.evidence and "ranked_by_resolution" not in rival.evidence
+
+
+def test_no_refit_without_a_significant_single_rival() -> None:
+    leader = _candidate("saturation", 1.0, train_rmse=3.0)
+    pair = _candidate("asymmetry+creep", 1.05, train_rmse=3.0)
+    pair.evidence["pair"] = ["asymmetry", "creep"]
+    weak = _candidate("asymmetry", 1.1, train_rmse=3.0)
+    weak.significant = False
+    cands = [leader, pair, weak]
+    check_resolution(_NoFits(), BASE, cands, noise=0.5, kw={})  # type: ignore[arg-type]
+    assert cands == [leader, pair, weak]
+
+
+def test_the_finer_base_reorders_a_lead_owed_to_the_resolution(tmp_path) -> None:
+    """Randomized case 4711: an even v^4 on a play rig whose three heaviest operators sit at 0.66-0.71
+    of the drive, between two of the base's ten thresholds. Saturation leads at 10 operators; both
+    refitted on 30, the even term validates far lower and goes first, the record naming the specs and
+    the four validation errors."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import diagnosis_cases as DC
+
+    from hilbench.diagnosis.diagnose import diagnose
+
+    case = DC.draw_case(4711)
+    paths, kw = DC.write_case(case, tmp_path)
+    d = diagnose(paths, case.spec, **kw)
+    first = d.effects[0]
+    assert first.effect == "asymmetry" and first.significant
+    record = first.evidence["ranked_by_resolution"]
+    assert record["over"] == "saturation"
+    assert all(s.startswith(f"pi(n={10 * T.RESOLUTION_FACTOR})+") for s in record["specs"])
+    coarse, fine = record["validation_rmse"], record["finer_validation_rmse"]
+    assert coarse["saturation"] < coarse["asymmetry"]  # the lead the coarse base gave
+    assert fine["asymmetry"] < (1.0 - T.MIN_GAIN) * fine["saturation"]
+    assert record["training_rmse"] > record["noise_band"]
+    assert "base's resolution" in first.explanation
