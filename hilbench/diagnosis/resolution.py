@@ -28,13 +28,14 @@ from __future__ import annotations
 from functools import partial
 from typing import Any
 
+from hilbench import progress
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.refit import fit_effect, spec_parts
 from hilbench.diagnosis.verdict import Candidate, relative_gain, rms, validation_errors
 from hilbench.diagnosis.workers import run_tasks
 from hilbench.identify.dataset import Dataset
 from hilbench.identify.fitting import FitResult, fit
-from hilbench.models.spec import split_spec
+from hilbench.models.spec import SpecError, split_spec
 
 #: The bases whose resolution is their number of evenly placed thresholds, and nothing else searched
 #: per operator (``pmpi`` carries one searched eta per operator: 30 of them are another search).
@@ -83,9 +84,17 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
     # each effect in the form the data choose on the finer base: a form chosen at 10 operators may
     # owe the choice to them as well (seed 3693: v^2 alone chosen over v^2..v^4 at 10, which at 30
     # validates 2.3x lower)
-    finer = fit(paths, spec, **kw)
-    fine: list[FitResult] = run_tasks([partial(fit_effect, paths, finer, c.effect, kw, None) for c in (leader, rival)],
-                                      jobs, shared=paths.runs)
+    try:
+        with progress.task(f"diagnose {base.spec}: {leader.effect} and {rival.effect} on {spec}", total=3) as advance:
+            finer = fit(paths, spec, **kw)
+            advance(1, f"{spec} done")
+            fine: list[FitResult] = run_tasks(
+                [partial(fit_effect, paths, finer, c.effect, kw, None) for c in (leader, rival)], jobs, advance,
+                [f"{spec}: {c.effect}" for c in (leader, rival)], shared=paths.runs)
+    except SpecError as e:
+        # the finer base needs 3x the columns: past the memory limit (--memory-limit) the order stands
+        leader.evidence["resolution_check"] = {"over": rival.effect, "skipped": str(e)}
+        return
     specs = [f.spec for f in fine]
     f_leader, f_rival = (rms(validation_errors(f)) for f in fine)
     record = {"over": rival.effect, "specs": specs, "training_rmse": leader_train, "noise_band": band,

@@ -169,7 +169,7 @@ CASES = [
     pytest.param(4586, "creep", "logarithmic", id="4586-creep-logarithmic-pmpi"),
     # even terms on play rigs whose operators sit between the base's ten thresholds: a saturation took
     # up the straight segments with its own share and validated 25 % (4711) and 9 % (4223) lower than
-    # the even term; on a base of 30 operators the even term validates 3.1x and 1.6x lower and goes
+    # the even term; on a base of 30 operators the even term validates 5.9x and 1.6x lower and goes
     # first (diagnosis/resolution.py, decision 0060)
     pytest.param(4711, "asymmetry", "even-4", id="4711-asymmetry-even4-pi"),
     pytest.param(4223, "asymmetry", "even-6", id="4223-asymmetry-even6-pi"),

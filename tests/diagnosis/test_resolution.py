@@ -104,3 +104,29 @@ def test_the_finer_base_reorders_a_lead_owed_to_the_resolution(tmp_path) -> None
     assert fine["asymmetry"] < (1.0 - T.MIN_GAIN) * fine["saturation"]
     assert record["training_rmse"] > record["noise_band"]
     assert "base's resolution" in first.explanation
+
+
+def test_a_finer_base_past_the_memory_limit_leaves_the_order_and_says_so(tmp_path) -> None:
+    """The finer base has 3x the columns: where its fit would pass the memory limit the check is
+    skipped, the reason recorded, and the diagnosis goes on (not an error for the user)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import diagnosis_cases as DC
+
+    from hilbench.identify.dataset import as_dataset
+    from hilbench.models.spec import set_memory_limit
+
+    paths, kw = DC.write_case(DC.draw_case(4711), tmp_path)
+    leader = _candidate("saturation", 1.0, train_rmse=3.0)
+    rival = _candidate("asymmetry", 1.1, train_rmse=3.0)
+    cands = [leader, rival]
+    set_memory_limit("1KB")
+    try:
+        check_resolution(as_dataset(paths), BASE, cands, noise=0.5, kw=kw)  # type: ignore[arg-type]
+    finally:
+        set_memory_limit(None)
+    assert cands == [leader, rival]
+    record = leader.evidence["resolution_check"]
+    assert record["over"] == "asymmetry" and "memory" in record["skipped"] and "pi(n=30)" in record["skipped"]
