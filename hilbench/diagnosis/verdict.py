@@ -292,11 +292,16 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
     if key == "drift_on_holds":
         drift = float(ev.get("drift_over_rms", math.nan))
         z, removed = float(ev.get("drift_over_noise", math.nan)), float(ev.get("drift_removed", math.nan))
-        required = (f"drift_over_rms >= {T.CREEP_MIN_DRIFT:g}, or drift_over_noise >= "
-                    f"{T.CREEP_MIN_DRIFT_OVER_NOISE:g} and drift_removed >= {T.CREEP_MIN_DRIFT_REMOVED:g}")
+        required = (f"drift_over_noise >= {T.CREEP_MIN_DRIFT_OVER_NOISE:g}, and drift_over_rms >= "
+                    f"{T.CREEP_MIN_DRIFT:g} or drift_removed >= {T.CREEP_MIN_DRIFT_REMOVED:g}")
         if not math.isfinite(drift):  # carried over from a member's verdict (a pair)
             return {"check": key, "measured": None, "required": required,
                     "text": "the residual does not drift along holds as creep's signature needs"}
+        if math.isfinite(z) and z < T.CREEP_MIN_DRIFT_OVER_NOISE and drift >= T.CREEP_MIN_DRIFT:
+            text = (f"the residual drifts along holds by {drift:.2g}x its rms but only {z:.2g}x the noise's "
+                    f"standard error on a drift, less than the {T.CREEP_MIN_DRIFT_OVER_NOISE:g}x creep's signature needs")
+            return {"check": key, "measured": {"drift_over_rms": drift, "drift_over_noise": z, "drift_removed": removed},
+                    "required": required, "text": text}
         text = (f"the residual drifts along holds by {drift:.2g}x its rms, less than the {T.CREEP_MIN_DRIFT:g}x "
                 "creep's signature needs")
         if math.isfinite(z) and z < T.CREEP_MIN_DRIFT_OVER_NOISE:

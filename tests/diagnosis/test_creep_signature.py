@@ -70,3 +70,6 @@ def test_noise_alone_does_not_drift():
     # a difference of two means of HOLD_END_ROWS noise samples: about 0.8 standard errors on average
     assert ev["drift_over_noise"] < 3.0
     assert not EVIDENCE_CHECKS["drift-on-holds"].holds({"drift_over_rms": 0.05, **ev})
+    # a drift within the noise is no drift, however small the rms beside it (decision 0061)
+    assert not EVIDENCE_CHECKS["drift-on-holds"].holds({"drift_over_rms": 0.25, **ev})
+    assert EVIDENCE_CHECKS["drift-on-holds"].holds({**ev, "drift_over_rms": 0.25, "drift_over_noise": 3.0})

@@ -118,6 +118,9 @@ def test_each_check_reads_measured_against_required():
     assert f"1.2x the noise's standard error on a drift, less than the {T.CREEP_MIN_DRIFT_OVER_NOISE:g}x" in r["text"]
     r = check_reason("drift_on_holds", _evidence_with(drift_over_rms=0.15, drift_over_noise=12.0, drift_removed=-0.21))
     assert r["measured"]["drift_removed"] == -0.21 and "creep's refit removes -21 % of that drift" in r["text"]
+    r = check_reason("drift_on_holds", _evidence_with(drift_over_rms=0.25, drift_over_noise=1.0, drift_removed=0.05))
+    assert r["measured"]["drift_over_noise"] == 1.0
+    assert f"0.25x its rms but only 1x the noise's standard error on a drift, less than the {T.CREEP_MIN_DRIFT_OVER_NOISE:g}x" in r["text"]
     r = check_reason("training_not_worse", _evidence_with(train_rmse=[1.0, 1.05]))
     assert r["measured"] == pytest.approx(0.05) and "rose 5 %" in r["text"]
     assert check_reason("some_new_check", ev)["text"] == "the check some_new_check does not hold"
