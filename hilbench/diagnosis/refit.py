@@ -19,7 +19,8 @@ the diagnosis chooses among them (``form_choice``):
   the training rows (:func:`hilbench.identify.sweep.interleaved`): a rate form is about rates, and
   the end of a training run holds only its last ones (rate-dependence: velocity damping, or the
   frequency polynomials of 003 with many more weights); a richer form must also fit the training
-  rows better than the first.
+  rows better than the first, and among forms that fit them alike (FORM_TIE) the one with the fewest
+  free parameters is the one checked (the polynomials of order 1 before order 3, decision 0063).
 
 With a rate plan (one training rate, several validation rates) the effect's shape is calibrated
 across drive rates first and fixed (:mod:`hilbench.diagnosis.rate_calibration`).
@@ -296,7 +297,7 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
     # that fit them equally well go to the one with the fewest free parameters (decision 0043)
     train = [f.metrics["train"]["rmse"] for f in fits]
     best = min(range(len(fits)), key=lambda k: train[k])
-    if choice == "train":
+    if choice in ("train", "inner-blocks"):
         # equal: within FORM_TIE of what the best form explains, not of the whole training error,
         # which other effects may dominate (seed 1504: a resonance left 1.54 um in training, where the
         # saturation forms differed by 0.005 um and the one that fitted better validated 30 % lower)
