@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 #: requirements on the data, checked by hilbench.diagnosis.testability
 MEMORYLESS_BASE = "memoryless-base"  # the base model has no memory of its own (``linear``)
-SEVERAL_RATES = "several-rates"  # drive frequencies spread by 1.5x or more, in training too
+SEVERAL_RATES = "several-rates"  # drive frequencies, or one frequency's rates, spread by 1.5x or more, in training too
 BROADBAND = "broadband"  # several rates or steps; calibrated across validation rates if only there
 HOLDS = "holds"  # the input holds still long enough for slow drift to show
 VARYING_CHANNEL = "varying-channel"  # an auxiliary channel that moves well beyond its noise

@@ -120,7 +120,8 @@ def _validation_rmse(d: Diagnosis, key: str) -> float:
 
 def test_dspace_pi_trained_at_20hz(dspace_active: Path) -> None:
     """The issue's protocol: a rate effect (delay, calibrated on 40 Hz) ranks first and lowers the
-    100 Hz error; rate-dependence is untestable from one training rate."""
+    100 Hz error. The 20 Hz run comes at several amplitudes (rates spread 6.9x), so rate-dependence's
+    damping is tested there (decision 0064) and refused: learned at 20 Hz, it doubles the 40/100 Hz error."""
     d = diagnose(dspace_active, "pi", train=["20hz"], test=["40hz", "100hz"])
     assert [r.data.name for r in d.result.runs if r.validation.any()] == ["0002-40hz", "0003-100hz"]
     assert d.best is not None and d.best.effect in RATE_EFFECTS and d.best.significant
@@ -132,7 +133,8 @@ def test_dspace_pi_trained_at_20hz(dspace_active: Path) -> None:
     assert after < 0.85 * before and ev["p_value"] < 1e-3
     assert 5e-5 < d.best.fitted.model.effect("delay").param("seconds") < 4e-4  # measured 0.176 ms
     assert "delay(seconds=" in d.best.spec  # the calibrated shape is written into the spec
-    assert "single drive frequency" in {u["effect"]: u["reason"] for u in d.untestable}["rate-dependence"]
+    rate = _effect(d, "rate-dependence")  # measured: training -33 %, validation +100 %
+    assert not rate.significant and rate.expected_gain < 0
     assert _effect(d, "asymmetry").significant  # measured 22 %, a static effect found as well
 
 

@@ -147,6 +147,24 @@ def loop_spread(f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
     return float(f[-k] / f[k - 1]) if f.size >= 2 * k else 1.0
 
 
+def rate_spread(f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
+    """Spread of drive rates: of the half cycles spanning LOOP_MIN_SPAN of the input span, the 90th
+    over the 10th percentile over time of their mean rates (swing x 2 f, input unit per s), or the
+    LOOP_HALF_CYCLES-th fastest over the LOOP_HALF_CYCLES-th slowest (a few loops at a second rate),
+    the larger; 1 when fewer than three such half cycles. One frequency at several amplitudes drives
+    several rates: what a velocity damping is a function of (decision 0064)."""
+    keep = (amplitude >= LOOP_MIN_SPAN * span) & (f > 0)
+    rates, durations = 2.0 * f[keep] * amplitude[keep], 0.5 / f[keep]
+    if rates.size < 3:
+        return 1.0
+    order = np.argsort(rates)
+    rates, w = rates[order], np.cumsum(durations[order])
+    p10, p90 = (float(rates[min(int(np.searchsorted(w, q * w[-1])), rates.size - 1)]) for q in (0.1, 0.9))
+    k = LOOP_HALF_CYCLES
+    loops = float(rates[-k] / rates[k - 1]) if rates.size >= 2 * k and rates[k - 1] > 0 else 1.0
+    return max(p90 / p10 if p10 > 0 else 1.0, loops)
+
+
 def _time_percentile(f: np.ndarray, q: float) -> float:
     """The ``q``-th percentile of half-cycle frequencies, each weighted by its duration 1/(2f)."""
     order = np.argsort(f)
@@ -157,7 +175,8 @@ def _time_percentile(f: np.ndarray, q: float) -> float:
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
     over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), the
-    half cycles spanning LOOP_MIN_SPAN of the input span (``loops``), their range (Hz), the longest hold (s), the number of steps and
+    half cycles spanning LOOP_MIN_SPAN of the input span (``loops``), the spread of their mean rates
+    (:func:`rate_spread`), their range (Hz), the longest hold (s), the number of steps and
     of reversals, and the highest frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
     us = [u for u in inputs if u.size]
     if span is None:
@@ -178,9 +197,10 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
     amplitude = np.concatenate(amplitudes) if amplitudes else np.zeros(0)
     spread = max(spread, loop_spread(f, amplitude, span))
-    return {"frequency_spread": spread, "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+    return {"frequency_spread": spread, "rate_spread": rate_spread(f, amplitude, span), "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
             "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
 
 
-__all__ = ["excitation_summary", "excited_bandwidth_hz", "half_cycle_frequencies", "hold_band", "input_noise", "motion"]
+__all__ = ["excitation_summary", "excited_bandwidth_hz", "half_cycle_frequencies", "hold_band", "input_noise", "motion",
+           "rate_spread"]

@@ -5,8 +5,8 @@ for each how it is checked and, when the data fall short, why the effect cannot 
 effects are judged on the training rows, where their parameters are learned: several drive
 frequencies there for rate-dependence, several frequencies or steps for dynamics and delay. With
 one training rate, dynamics and delay are calibrated across the validation rates when those allow
-it (:mod:`hilbench.diagnosis.rate_calibration`); rate-dependence, whose rate-weighted operator
-weights are linear parameters a single rate cannot fix, is then untestable.
+it (:mod:`hilbench.diagnosis.rate_calibration`); rate-dependence is then untestable, unless the
+one frequency comes at several amplitudes: those are several rates for its damping (decision 0064).
 """
 
 from __future__ import annotations
@@ -116,6 +116,16 @@ class DataContext:
         return self.ex_train["frequency_spread"] >= T.SEVERAL_RATES_SPREAD
 
     @property
+    def several_rates(self) -> bool:
+        """Several drive rates: several frequencies, or one frequency at several amplitudes (what a
+        velocity damping is a function of, :func:`hilbench.diagnosis.input_motion.rate_spread`)."""
+        return self.multi or self.ex["rate_spread"] >= T.SEVERAL_RATES_SPREAD
+
+    @property
+    def several_rates_train(self) -> bool:
+        return self.multi_train or self.ex_train["rate_spread"] >= T.SEVERAL_RATES_SPREAD
+
+    @property
     def broadband(self) -> bool:
         return self.multi or self.ex["steps"] > 0
 
@@ -145,10 +155,15 @@ def _memoryless_base(name: str, ctx: DataContext) -> Verdict:
 
 
 def _several_rates(name: str, ctx: DataContext) -> Verdict:
-    if not ctx.multi:
-        return f"{ctx.single}: {name} cannot be separated from hysteresis"
-    if not ctx.multi_train:
-        return (f"{ctx.single_train}: {name} cannot be separated from hysteresis in training "
+    """Rate-dependence needs several drive rates, in training too: several frequencies for its
+    frequency polynomials, or one frequency at several amplitudes for its damping, whose gain and
+    power law act on the rate itself (one gain on the loop since decision 0018, not a weight per
+    operator that one rate cannot fix). At one rate a damping's loop is a hysteresis loop
+    (decision 0064)."""
+    if not ctx.several_rates:
+        return f"{ctx.single} at one amplitude: {name} cannot be separated from hysteresis"
+    if not ctx.several_rates_train:
+        return (f"{ctx.single_train}, at one amplitude: {name} cannot be separated from hysteresis in training "
                 "(train on two or more rates to test it)")
     return None
 

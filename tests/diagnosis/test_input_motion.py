@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hilbench.diagnosis.input_motion import excitation_summary, half_cycle_frequencies, hold_band, input_noise, motion
+from hilbench.diagnosis.input_motion import (excitation_summary, half_cycle_frequencies, hold_band, input_noise, motion,
+                                             rate_spread)
 
 FS = 1000.0
 
@@ -73,3 +74,17 @@ def test_small_loops_make_no_second_rate() -> None:
     sine = 5.0 * np.sin(2 * np.pi * 0.7 * np.arange(int(6 / 0.7 * FS)) / FS)
     assert excitation_summary([np.concatenate([_triangle(9.0, 3, 0.25), sine])], FS)["frequency_spread"] < 1.5
     assert excitation_summary([np.concatenate([_triangle(9.0, 3, 2.5), sine])], FS)["frequency_spread"] > 10
+
+
+def test_one_frequency_at_several_amplitudes_is_several_rates() -> None:
+    """A 2 Hz sine whose amplitude falls from 1 to 0.2 holds one drive frequency but several rates
+    (what a velocity damping acts on, decision 0064); at a constant amplitude both spreads are 1."""
+    t = np.arange(int(4 * FS)) / FS
+    ramped = (1.0 - 0.2 * t) * np.sin(2 * np.pi * 2.0 * t)
+    summary = excitation_summary([ramped], FS)
+    assert summary["frequency_spread"] < 1.5 < summary["rate_spread"]
+    assert 2.5 < summary["rate_spread"] < 5.0  # the 90th over the 10th percentile over time: ~0.9 / 0.3
+    steady = excitation_summary([np.sin(2 * np.pi * 2.0 * t)], FS)
+    assert steady["frequency_spread"] < 1.5 and steady["rate_spread"] < 1.1
+    # half cycles below LOOP_MIN_SPAN of the span are wiggles, not rates
+    assert rate_spread(np.array([2.0, 2.0, 2.0, 2.0]), np.array([1.0, 1.0, 0.01, 0.01]), 1.0) == 1.0
