@@ -157,19 +157,23 @@ def rate_spread(f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
     rates, durations = 2.0 * f[keep] * amplitude[keep], 0.5 / f[keep]
     if rates.size < 3:
         return 1.0
-    order = np.argsort(rates)
-    rates, w = rates[order], np.cumsum(durations[order])
-    p10, p90 = (float(rates[min(int(np.searchsorted(w, q * w[-1])), rates.size - 1)]) for q in (0.1, 0.9))
+    p10, p90 = (_weighted_percentile(rates, durations, q) for q in (10, 90))
     k = LOOP_HALF_CYCLES
-    loops = float(rates[-k] / rates[k - 1]) if rates.size >= 2 * k and rates[k - 1] > 0 else 1.0
+    ordered = np.sort(rates)
+    loops = float(ordered[-k] / ordered[k - 1]) if rates.size >= 2 * k and ordered[k - 1] > 0 else 1.0
     return max(p90 / p10 if p10 > 0 else 1.0, loops)
+
+
+def _weighted_percentile(x: np.ndarray, weights: np.ndarray, q: float) -> float:
+    """The ``q``-th percentile of ``x``, each value counted with its weight."""
+    order = np.argsort(x)
+    w = np.cumsum(weights[order])
+    return float(x[order][min(int(np.searchsorted(w, q / 100.0 * w[-1])), x.size - 1)])
 
 
 def _time_percentile(f: np.ndarray, q: float) -> float:
     """The ``q``-th percentile of half-cycle frequencies, each weighted by its duration 1/(2f)."""
-    order = np.argsort(f)
-    w = np.cumsum(1.0 / f[order])
-    return float(f[order][min(int(np.searchsorted(w, q / 100.0 * w[-1])), f.size - 1)])
+    return _weighted_percentile(f, 1.0 / f, q)
 
 
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
