@@ -30,6 +30,7 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis import thresholds as T
+from hilbench.diagnosis.ranking import reorderable
 from hilbench.diagnosis.refit import fit_effect, spec_parts
 from hilbench.diagnosis.verdict import Candidate, relative_gain, rms, validation_errors
 from hilbench.diagnosis.workers import run_tasks
@@ -55,25 +56,18 @@ def finer_spec(spec: str) -> str | None:
     return "+".join([f"{name}({inner})", *parts[1:]])
 
 
-def _single(c: Candidate) -> bool:
-    """A significant refit of one effect that the ranking may reorder (not a pair, the base check
-    or a refit calibrated across drive rates, whose spec carries the calibration)."""
-    return (c.significant and c.fitted is not None and "pair" not in c.evidence and c.effect != "base"
-            and "rate_calibration" not in c.evidence)
-
-
 def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], noise: float, kw: dict[str, Any],
                      jobs: int = 1) -> None:
     """Reorder ranked ``cands``, refits of ``base``, in place when the finer base puts the rival first (module doc);
     the leader's evidence records the check either way (``resolution_check``)."""
-    if not cands or not _single(cands[0]) or not noise > 0.0:
+    if not cands or not reorderable(cands[0]) or not noise > 0.0:
         return
     leader = cands[0]
     leader_train = leader.fitted.metrics["train"]["rmse"]
     band = float(leader.evidence.get("noise_band", T.NOISE_FACTOR * noise))
     if not leader_train > band:
         return
-    rival = next((c for c in cands[1:] if _single(c) and c.effect != leader.effect), None)
+    rival = next((c for c in cands[1:] if reorderable(c) and c.effect != leader.effect), None)
     if rival is None:
         return
     v_leader, v_rival = rms(validation_errors(leader.fitted)), rms(validation_errors(rival.fitted))

@@ -208,3 +208,62 @@ def test_a_pair_ranks_behind_a_single_it_does_not_beat_by_the_margin():
     cands = [better, creep]
     rank(cands)
     assert cands[0] is better
+
+
+def _rounded_corners(amplitude: float, every: int) -> np.ndarray:
+    """A lag's error where it rounds a corner that a dead time only shifts: a short ringing pulse
+    every ``every`` samples (the drive's corners), zero elsewhere."""
+    e = np.zeros(N)
+    for k in range(every // 2, N - 4, every):
+        e[k:k + 4] = amplitude * np.array([1.0, -0.6, 0.3, -0.1])
+    return e
+
+
+def test_the_fast_error_decides_between_a_delay_and_a_lag():
+    """Randomized seed 4719 (an amplifier delay under ``pmpi`` on an M-play rig): the lag validated
+    0.344 um against the delay's 0.435, since it also takes up part of the base's mismatch, but at
+    the input's fastest changes the delay's error was the noise's (first differences 0.263 um, the
+    noise's s sqrt(2) 0.265) and the lag's 0.315 (decision 0066). Here the lag's error holds less
+    slow misfit and a pulse at every corner; the delay's more slow misfit and nothing at the corners.
+    The gain order puts the lag first, the first differences put the delay there."""
+    rng = np.random.default_rng(3)
+    t = np.arange(N)
+    noise = rng.normal(0.0, 0.05, N)
+    slow = np.sin(2.0 * np.pi * t / 800.0)
+    lag = _candidate("dynamics", 0.80, 14, noise + 0.5 * slow + _rounded_corners(0.3, 100))
+    delay = _candidate("delay", 0.70, 12, noise + 0.8 * slow)
+    d_lag, d_delay = np.diff(noise + 0.5 * slow + _rounded_corners(0.3, 100)), np.diff(noise + 0.8 * slow)
+    assert np.sqrt(np.mean(d_delay**2)) < 0.8 * np.sqrt(np.mean(d_lag**2))  # the premise: the delay's fast part is lower
+    cands = [lag, delay]
+    rank(cands)
+    assert cands[0] is delay and cands[1] is lag
+    ev = delay.evidence["ranked_by_fast_error"]
+    assert ev["over"] == "dynamics" and ev["p_value_of_difference"] < T.P_MAX
+    assert ev["first_difference_rms"]["delay"] < (1.0 - T.MIN_GAIN) * ev["first_difference_rms"]["dynamics"]
+    assert "fastest changes" in delay.explanation
+    # the same errors under other names: no delay and lag to tell apart, the gain order stands
+    sat, asym = (_candidate(name, g, 12, c.fitted.runs[0].simulated) for name, g, c in
+                 (("saturation", 0.80, lag), ("asymmetry", 0.70, delay)))
+    cands = [sat, asym]
+    rank(cands)
+    assert cands[0] is sat
+
+
+def test_a_consistent_but_tiny_fast_difference_does_not_reorder_a_delay_and_a_lag():
+    """Decision 0065's counter-example: the same noise and slow misfits of 0.7 and 1.0 at 1/800 of
+    the sample rate. The sign-flip tests call the first differences of the smaller misfit lower (a
+    slow misfit's derivative reaches them), but they differ by a few hundredths of a percent, far
+    under MIN_GAIN: the lag keeps its lead, and its evidence says what was compared."""
+    rng = np.random.default_rng(11)
+    t = np.arange(N)
+    noise = rng.normal(0.0, 0.05, N)
+    slow = np.sin(2.0 * np.pi * t / 800.0)
+    lag = _candidate("dynamics", 0.80, 14, noise + 0.7 * slow)
+    delay = _candidate("delay", 0.79, 12, noise + 1.0 * slow)
+    cands = [delay, lag]
+    rank(cands)
+    assert cands[0] is lag
+    check = lag.evidence["fast_error_check"]
+    r = check["first_difference_rms"]
+    assert check["against"] == "delay" and abs(r["delay"] / r["dynamics"] - 1.0) < 0.01
+    assert "ranked_by_fast_error" not in delay.evidence
