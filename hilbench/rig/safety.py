@@ -39,7 +39,21 @@ def command_path(
 
 
 def ramp(start: float, target: float, max_step: float) -> np.ndarray:
-    """Commands from ``start`` (excluded) to ``target`` (included) at most ``max_step`` apart."""
+    """Commands from ``start`` (excluded) to ``target`` (included) at most ``max_step`` apart.
+
+    "At most" is checked as :func:`command_path` checks it, in floating point: linspace's rounding
+    can put a step one ulp past ``max_step``, the slew limiter would then clip it and the ramp would
+    end an ulp beside ``target`` (a ramp to rest ending at -2.8e-16 instead of 0). One more sample
+    makes every step pass.
+    """
     distance = abs(target - start)
-    n = int(math.ceil(distance / max_step)) if distance > 0 else 0
-    return np.linspace(start, target, n + 1)[1:]
+    if not distance > 0:
+        return np.empty(0)
+    n = int(math.ceil(distance / max_step))
+    for _ in range(8):
+        points = np.linspace(start, target, n + 1)
+        before, after = points[:-1], points[1:]
+        if np.all((after >= before - max_step) & (after <= before + max_step)):
+            break
+        n += 1
+    return points[1:]
