@@ -21,6 +21,16 @@ Both effects are then refitted on the base at RESOLUTION_FACTOR x its operators,
 the data choose there, and the rival goes first when its finer refit validates more than MIN_GAIN
 below the leader's. The user's base is unchanged: the finer refits only order the candidates
 (docs/decisions/0060).
+
+A delay and a lag on a ``pmpi`` base are checked so whatever their margins (decision 0068). The
+M-play operator's eta is a delay coefficient of its own (004 eq. 6): at the reversals it bends the
+loop as a dead time or a lag would, and with ten thresholds placed evenly the searched etas also
+stand in for the plant's operators between them. What that leaves at the reversals, a lag takes up
+with the delay's share: on randomized seed 5744 (a 1 ms amplifier delay, an M-play rig) the lag
+validated at 0.023 um against the delay's 0.060 on ten operators, and at 0.046 against 0.015 on
+twenty. The training condition does not apply (the lag trained at the noise there), nor the tie:
+the lag's lead is the base's mismatch, however large. ``pmpi`` is refitted at
+PMPI_RESOLUTION_FACTOR x its operators.
 """
 
 from __future__ import annotations
@@ -30,7 +40,7 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.ranking import reorderable
+from hilbench.diagnosis.ranking import DELAY_AND_LAG, reorderable
 from hilbench.diagnosis.refit import fit_effect, spec_parts
 from hilbench.diagnosis.verdict import Candidate, relative_gain, rms, validation_errors
 from hilbench.diagnosis.workers import run_tasks
@@ -42,18 +52,33 @@ from hilbench.models.spec import SpecError, split_spec
 #: The bases whose resolution is their number of evenly placed thresholds, and nothing else searched
 #: per operator (``pmpi`` carries one searched eta per operator: 30 of them are another search).
 FINER_BASES = ("pi", "pi1", "mpi", "pd")
+#: Bases whose operators carry a searched delay coefficient (M-play's eta): a delay and a lag are
+#: checked on a finer one whatever their margins (module doc).
+ETA_BASES = ("pmpi",)
 
 
 def finer_spec(spec: str) -> str | None:
     """``spec`` with its base at RESOLUTION_FACTOR x the default operators (``pi+saturation`` ->
-    ``pi(n=30)+saturation``); None when the base is not in FINER_BASES or the user set its ``n``."""
+    ``pi(n=30)+saturation``; ``pmpi`` at PMPI_RESOLUTION_FACTOR x); None when the base is in
+    neither FINER_BASES nor ETA_BASES or the user set its ``n``."""
     parts = spec_parts(spec)
     name, options = split_spec(parts[0])[0]
-    if name not in FINER_BASES or "n" in options:
+    if name not in FINER_BASES + ETA_BASES or "n" in options:
         return None
-    n = T.RESOLUTION_FACTOR * int(BASES[name].options_schema["n"].default)
+    factor = T.PMPI_RESOLUTION_FACTOR if name in ETA_BASES else T.RESOLUTION_FACTOR
+    n = factor * int(BASES[name].options_schema["n"].default)
     inner = ",".join([f"n={n}", *(f"{k}={v}" for k, v in options.items())])
     return "+".join([f"{name}({inner})", *parts[1:]])
+
+
+def _delay_or_lag_rival(base_spec: str, cands: list[Candidate]) -> Candidate | None:
+    """On an ETA_BASES base whose leader is a delay or a lag, the other one when it is significant
+    (a refit the ranking may reorder); else None."""
+    leader = cands[0]
+    if split_spec(base_spec)[0][0] not in ETA_BASES or leader.effect not in DELAY_AND_LAG:
+        return None
+    partner = next(iter(DELAY_AND_LAG - {leader.effect}))
+    return next((c for c in cands[1:] if c.effect == partner and reorderable(c)), None)
 
 
 def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], noise: float, kw: dict[str, Any],
@@ -65,17 +90,21 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
     leader = cands[0]
     leader_train = leader.fitted.metrics["train"]["rmse"]
     band = float(leader.evidence.get("noise_band", T.NOISE_FACTOR * noise))
-    if not leader_train > band:
-        return
-    rival = next((c for c in cands[1:] if reorderable(c) and c.effect != leader.effect), None)
-    if rival is None:
-        return
-    v_leader, v_rival = rms(validation_errors(leader.fitted)), rms(validation_errors(rival.fitted))
-    if not v_rival**2 <= T.TIE_MEAN_SQUARE_RATIO * v_leader**2:
-        return
     spec = finer_spec(base.spec)
     if spec is None:
         return
+    rival = _delay_or_lag_rival(base.spec, cands)
+    trigger = "a delay and a lag on an eta base" if rival is not None else "close leaders above the noise"
+    v_leader = rms(validation_errors(leader.fitted))
+    if rival is None:
+        if not leader_train > band:
+            return
+        rival = next((c for c in cands[1:] if reorderable(c) and c.effect != leader.effect), None)
+        if rival is None or split_spec(base.spec)[0][0] not in FINER_BASES:
+            return
+        if not rms(validation_errors(rival.fitted))**2 <= T.TIE_MEAN_SQUARE_RATIO * v_leader**2:
+            return
+    v_rival = rms(validation_errors(rival.fitted))
     # each effect in the form the data choose on the finer base: a form chosen at 10 operators may
     # owe the choice to them as well (seed 4223: v^2 alone chosen at 10; at 30 v^2..v^4, which
     # validates 0.112 against v^2's 0.175 um there)
@@ -87,12 +116,13 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
                 [partial(fit_effect, paths, finer, c.effect, kw, None) for c in (leader, rival)], jobs, advance,
                 [f"{spec}: {c.effect}" for c in (leader, rival)], shared=paths.runs)
     except SpecError as e:
-        # the finer base needs 3x the columns: past the memory limit (--memory-limit) the order stands
+        # the finer base needs 2-3x the columns: past the memory limit (--memory-limit) the order stands
         leader.evidence["resolution_check"] = {"over": rival.effect, "skipped": str(e)}
         return
     specs = [f.spec for f in fine]
+    factor = T.PMPI_RESOLUTION_FACTOR if split_spec(base.spec)[0][0] in ETA_BASES else T.RESOLUTION_FACTOR
     f_leader, f_rival = (rms(validation_errors(f)) for f in fine)
-    record = {"over": rival.effect, "specs": specs, "training_rmse": leader_train, "noise_band": band,
+    record = {"over": rival.effect, "trigger": trigger, "specs": specs, "training_rmse": leader_train, "noise_band": band,
               "validation_rmse": {leader.effect: v_leader, rival.effect: v_rival},
               "finer_validation_rmse": {leader.effect: f_leader, rival.effect: f_rival}}
     if relative_gain(f_leader, f_rival) > T.MIN_GAIN:
@@ -101,7 +131,7 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
         rival.evidence["ranked_by_resolution"] = {**record, "over": leader.effect}
         rival.explanation += (
             f"; ranked before {leader.effect}, which validated {v_leader:.4g} against its {v_rival:.4g}: on a base "
-            f"of {T.RESOLUTION_FACTOR}x the operators it validates at {f_rival:.4g} against {f_leader:.4g}, so "
+            f"of {factor}x the operators it validates at {f_rival:.4g} against {f_leader:.4g}, so "
             f"{leader.effect}'s lead came from the base's resolution")
     else:
         leader.evidence["resolution_check"] = record

@@ -155,3 +155,8 @@ FORM_TIE = 0.01
 #: 0060) with this many times the base's default operators: at 2x an even v^4 on a one-sided play rig
 #: still ranked behind a saturation, at 3x it reached the noise and led (decision 0054's table).
 RESOLUTION_FACTOR = 3
+#: ... and for ``pmpi``, whose operators each carry a searched eta, this many times: at 30 operators
+#: the search over 29 etas stopped short of the 20-operator fit (randomized seeds 4719 and 5629: the
+#: lag validated 0.85 against 0.30 um, the delay 0.19 against 0.14), so the finer base would be a
+#: worse fit, not a finer one (decision 0068).
+PMPI_RESOLUTION_FACTOR = 2

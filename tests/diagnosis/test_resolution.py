@@ -22,7 +22,8 @@ N = 2000
     ("mpi", f"mpi(n={10 * T.RESOLUTION_FACTOR})"),
     ("pd(n_dead_zone=2)+delay", f"pd(n={10 * T.RESOLUTION_FACTOR},n_dead_zone=2)+delay"),
     ("pi(n=16)+asymmetry", None),  # the user chose the resolution
-    ("pmpi+delay", None),  # one searched eta per operator: not a resolution
+    ("pmpi+delay", f"pmpi(n={10 * T.PMPI_RESOLUTION_FACTOR})+delay"),  # one searched eta per operator: 2x
+    ("pmpi(n=12)+dynamics", None),
     ("duhem-d", None),
     ("linear", None),
 ])
@@ -58,7 +59,11 @@ BASE = SimpleNamespace(spec="pi")
     # the rival's mean square is more than TIE_MEAN_SQUARE_RATIO x the leader's: a decisive lead
     (_candidate("saturation", 1.0, train_rmse=3.0), _candidate("asymmetry", 1.5, train_rmse=3.0), BASE),
     # a base whose resolution the check does not change
-    (_candidate("dynamics", 1.0, train_rmse=3.0), _candidate("delay", 1.1, train_rmse=3.0), SimpleNamespace(spec="pmpi")),
+    (_candidate("dynamics", 1.0, train_rmse=3.0), _candidate("delay", 1.1, train_rmse=3.0), SimpleNamespace(spec="duhem-d")),
+    # on pmpi only a delay and a lag are checked whatever their margins, not other close leaders
+    (_candidate("saturation", 1.0, train_rmse=3.0), _candidate("creep", 1.1, train_rmse=3.0), SimpleNamespace(spec="pmpi")),
+    # a pmpi base whose n the user set
+    (_candidate("dynamics", 1.0, train_rmse=0.9), _candidate("delay", 3.0, train_rmse=0.9), SimpleNamespace(spec="pmpi(n=10)")),
 ])
 def test_no_refit_when_the_resolution_cannot_matter(leader, rival, base) -> None:
     cands = [leader, rival]
@@ -134,3 +139,35 @@ def test_a_finer_base_past_the_memory_limit_leaves_the_order_and_says_so(tmp_pat
     assert cands == [leader, rival]
     record = leader.evidence["resolution_check"]
     assert record["over"] == "asymmetry" and "memory" in record["skipped"] and "pi(n=30)" in record["skipped"]
+
+
+def test_a_delay_behind_a_lag_on_pmpi_is_checked_on_a_finer_base_whatever_the_margins(tmp_path) -> None:
+    """Randomized case 5744: a 1 ms amplifier delay on an M-play rig under ``pmpi``. On ten operators the
+    lag trains at the noise and validates far below the delay (the M-play etas and the lag share the
+    reversals' mismatch), so neither the training condition nor the tie would let the check run. On
+    twenty operators the delay validates below the lag and goes first (decision 0068)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import diagnosis_cases as DC
+
+    from hilbench.identify.dataset import as_dataset
+    from hilbench.identify.fitting import fit
+
+    case = DC.draw_case(5744)
+    paths, kw = DC.write_case(case, tmp_path)
+    data = as_dataset(paths)
+    base = fit(data, "pmpi", **kw)
+    noise = case.noise_std_um
+    lag = _candidate("dynamics", 0.023, train_rmse=noise)
+    delay = _candidate("delay", 0.060, train_rmse=2.3 * noise)
+    cands = [lag, delay]
+    check_resolution(data, base, cands, noise=noise, kw=kw)
+    assert cands[0] is delay
+    record = delay.evidence["ranked_by_resolution"]
+    assert record["over"] == "dynamics" and record["trigger"] == "a delay and a lag on an eta base"
+    assert all(s.startswith(f"pmpi(n={10 * T.PMPI_RESOLUTION_FACTOR})+") for s in record["specs"])
+    fine = record["finer_validation_rmse"]
+    assert fine["delay"] < (1.0 - T.MIN_GAIN) * fine["dynamics"]
+    assert "base's resolution" in delay.explanation
