@@ -50,7 +50,7 @@ from hilbench.models.bases import BASES
 from hilbench.models.spec import SpecError, split_spec
 
 #: The bases whose resolution is their number of evenly placed thresholds, and nothing else searched
-#: per operator (``pmpi`` carries one searched eta per operator: 30 of them are another search).
+#: per operator, for close leaders of any kind (``pmpi`` carries one searched eta per operator).
 FINER_BASES = ("pi", "pi1", "mpi", "pd")
 #: Bases whose operators carry a searched delay coefficient (M-play's eta): a delay and a lag are
 #: checked on a finer one whatever their margins (module doc).
