@@ -30,7 +30,9 @@ with the delay's share: on randomized seed 5744 (a 1 ms amplifier delay, an M-pl
 validated at 0.023 um against the delay's 0.060 on ten operators, and at 0.046 against 0.015 on
 twenty. The training condition does not apply (the lag trained at the noise there), nor the tie:
 the lag's lead is the base's mismatch, however large. ``pmpi`` is refitted at
-PMPI_RESOLUTION_FACTOR x its operators.
+PMPI_RESOLUTION_FACTOR x its operators. A leader that the error at the input's fastest changes put
+first (:func:`hilbench.diagnosis.ranking._delay_or_lag_by_the_fast_error`) keeps its place: that is
+where the two differ, and the finer base compares what both share.
 """
 
 from __future__ import annotations
@@ -73,9 +75,15 @@ def finer_spec(spec: str) -> str | None:
 
 def _delay_or_lag_rival(base_spec: str, cands: list[Candidate]) -> Candidate | None:
     """On an ETA_BASES base whose leader is a delay or a lag, the other one when it is significant
-    (a refit the ranking may reorder); else None."""
+    (a refit the ranking may reorder), unless the leader was put first by its fast error; else None."""
     leader = cands[0]
     if split_spec(base_spec)[0][0] not in ETA_BASES or leader.effect not in DELAY_AND_LAG:
+        return None
+    if "ranked_by_fast_error" in leader.evidence:
+        # the error at the input's fastest changes already passed the bar of an effect for the leader
+        # (decision 0066): that is where a delay and a lag differ, and a finer base's slow part is not
+        # evidence against it (randomized seed 4719: on pmpi(n=20) the lag validates 0.30 um against
+        # the delay's 0.44, while the delay's fast error stands at the noise's)
         return None
     partner = next(iter(DELAY_AND_LAG - {leader.effect}))
     return next((c for c in cands[1:] if c.effect == partner and reorderable(c)), None)

@@ -31,15 +31,19 @@ def test_finer_spec(spec: str, finer: str | None) -> None:
     assert finer_spec(spec) == finer
 
 
-def _candidate(effect: str, validation_rmse: float, train_rmse: float, band: float = 1.0) -> Candidate:
+def _candidate(effect: str, validation_rmse: float, train_rmse: float, band: float = 1.0,
+               fast_error: bool = False) -> Candidate:
     rng = np.random.default_rng(len(effect))
     e = rng.normal(0.0, 1.0, N)
     e *= validation_rmse / np.sqrt(np.mean(e**2))
     run = SimpleNamespace(key="test", simulated=e, data=SimpleNamespace(output=np.zeros(N)),
                           validation=np.ones(N, dtype=bool))
     fitted = SimpleNamespace(spec=f"pi+{effect}", runs=[run], metrics={"train": {"rmse": train_rmse}})
+    evidence: dict = {"noise_band": band}
+    if fast_error:
+        evidence["ranked_by_fast_error"] = {"over": "dynamics"}
     return Candidate(effect=effect, spec=f"pi+{effect}", significant=True, expected_gain=0.5,
-                     explanation=f"{effect} helps", evidence={"noise_band": band}, fitted=fitted)  # type: ignore[arg-type]
+                     explanation=f"{effect} helps", evidence=evidence, fitted=fitted)  # type: ignore[arg-type]
 
 
 class _NoFits:
@@ -62,6 +66,9 @@ BASE = SimpleNamespace(spec="pi")
     (_candidate("dynamics", 1.0, train_rmse=3.0), _candidate("delay", 1.1, train_rmse=3.0), SimpleNamespace(spec="duhem-d")),
     # on pmpi only a delay and a lag are checked whatever their margins, not other close leaders
     (_candidate("saturation", 1.0, train_rmse=3.0), _candidate("creep", 1.1, train_rmse=3.0), SimpleNamespace(spec="pmpi")),
+    # a delay the fast error put first on pmpi (decision 0066): the finer base does not overrule it
+    (_candidate("delay", 1.0, train_rmse=3.0, fast_error=True), _candidate("dynamics", 0.8, train_rmse=3.0),
+     SimpleNamespace(spec="pmpi")),
     # a pmpi base whose n the user set
     (_candidate("dynamics", 1.0, train_rmse=0.9), _candidate("delay", 3.0, train_rmse=0.9), SimpleNamespace(spec="pmpi(n=10)")),
 ])
