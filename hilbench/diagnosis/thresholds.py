@@ -78,6 +78,10 @@ CREEP_MIN_HOLD_S = 0.2
 #: the rest judge; the richer form must lower that error by RICHER_FORM_MARGIN.
 INNER_SPLIT = 0.8
 RICHER_FORM_MARGIN = 0.1
+#: Validation drives beyond training's largest |input| when it reaches more than REACH_MARGIN past
+#: it; within that a memoryless polynomial is not extrapolated and its order is chosen as any
+#: effect's form (decision 0069). 2 %: a v^4 grows by 8 % of its top value there.
+REACH_MARGIN = 0.02
 #: A loop family is judged on an inner split only when the inner fit's rows turn the input this
 #: many times (two turns close a loop): rows that only step and hold show no loop shape to learn.
 INNER_MIN_REVERSALS = 2

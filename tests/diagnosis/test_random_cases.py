@@ -220,10 +220,15 @@ def test_hidden_effect_ranked_first_and_significant(seed, hidden, form, folder):
 
 
 @pytest.mark.parametrize(("seed", "form", "order"), [pytest.param(2129, "even-2", "asymmetry(order=2)", id="2129-even-2"),
-                                                     pytest.param(2051, "even-4", "asymmetry", id="2051-even-4")])
+                                                     pytest.param(2051, "even-4", "asymmetry", id="2051-even-4"),
+                                                     pytest.param(6743, "even-4", "asymmetry", id="6743-even-4-within-reach")])
 def test_the_polynomial_order_is_chosen_where_it_must_extrapolate(seed, form, order, folder):
-    """Decision 0046: v^2 alone unless v^2..v^4 predicts the training rows at the largest inputs
-    better from the rows below them; an even v^4 keeps its quartic."""
+    """Decision 0046: where validation drives beyond training (2129, 1.23x), v^2 alone unless
+    v^2..v^4 predicts the training rows at the largest inputs better from the rows below them; an
+    even v^4 keeps its quartic. Decision 0069: where validation stays within training's reach
+    (6743, a one-sided drive), nothing extrapolates, and the order is chosen on the training fit
+    as any effect's form: the quartic, where the largest inputs' rows, fitted by none of the base's
+    top operators, kept v^2 and a saturation ranked first."""
     case = DC.draw_case(seed)
     assert case.hidden == ["asymmetry"] and case.forms["asymmetry"] == form
     paths, kw = DC.write_case(case, folder)
