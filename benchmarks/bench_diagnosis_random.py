@@ -88,6 +88,14 @@ def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
                    gains={c.effect: round(float(c.expected_gain), 4) for c in d.effects},
                    untestable=[u["effect"] for u in d.untestable],
                    validation_rmse=float(d.result.metrics["validation"]["rmse"]), noise_floor=float(d.noise))
+        if d.effects:
+            # which ordering rule put the first candidate first, and the finer-base check's record,
+            # so a draw tells which rules decide its cases
+            first = d.effects[0].evidence
+            out["ranked_by"] = sorted(k for k in first if k.startswith("ranked_by_"))
+            check = first.get("ranked_by_resolution") or first.get("resolution_check")
+            if check is not None:
+                out["resolution"] = check
         if auto:
             steps = da.steps or []
             before = float(steps[0]["validation"]["rmse"]) if steps else out["validation_rmse"]
