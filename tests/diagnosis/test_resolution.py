@@ -178,3 +178,32 @@ def test_a_delay_behind_a_lag_on_pmpi_is_checked_on_a_finer_base_whatever_the_ma
     fine = record["finer_validation_rmse"]
     assert fine["delay"] < (1.0 - T.MIN_GAIN) * fine["dynamics"]
     assert "base's resolution" in delay.explanation
+
+
+def test_a_finer_base_that_only_worsens_the_leader_does_not_reorder(tmp_path) -> None:
+    """Randomized case 7178: a sensor delay and an output knee hidden on a bipolar play rig under
+    ``pi``. With the delay unmodelled both leaders train at nine times the noise; on thirty operators
+    the saturation validates 30 % worse than on ten and a cubic asymmetry validates below it, but not
+    below the saturation's showing on the user's base. The saturation, whose odd pattern the residual
+    shows, stays first (decision 0070); before, the asymmetry went first."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import diagnosis_cases as DC
+
+    from hilbench.diagnosis.diagnose import diagnose
+
+    case = DC.draw_case(7178)
+    assert case.hidden == ["delay", "saturation"] and case.spec == "pi"
+    paths, kw = DC.write_case(case, tmp_path)
+    d = diagnose(paths, case.spec, **kw)
+    first = d.effects[0]
+    assert first.effect == "saturation" and first.significant, [(c.effect, c.significant) for c in d.effects]
+    record = first.evidence["resolution_check"]
+    fine, coarse = record["finer_validation_rmse"], record["validation_rmse"]
+    assert record["over"] == "asymmetry"
+    # the finer base made the leader worse, and the rival beat only that worse showing
+    assert fine["saturation"] > coarse["saturation"]
+    assert fine["asymmetry"] < (1.0 - T.MIN_GAIN) * fine["saturation"]
+    assert not fine["asymmetry"] < (1.0 - T.MIN_GAIN) * coarse["saturation"]
