@@ -28,6 +28,9 @@
   data cannot test with the reason;
 * when no single effect carries over but some explained training, judges pairs of them together
   (candidate ``a+b``, :mod:`hilbench.diagnosis.pairs`): creep after each load step;
+* when nothing is significant on every validation row and some of them drive past training's input
+  range (or carry the hysteresis memory of such an excursion), judges the single effects again on
+  the rows within training's reach (:mod:`hilbench.diagnosis.reach`, decision 0071);
 * with ``add`` refits with that effect, with ``auto`` adds the best significant effect (or pair)
   while one remains (``steps``).
 
@@ -46,6 +49,7 @@ from hilbench import progress
 from hilbench.diagnosis.base_check import alternatives, fit_alternative, wrong_base
 from hilbench.diagnosis.base_polish import polished_base
 from hilbench.diagnosis.pairs import pair_candidates
+from hilbench.diagnosis.reach import restricted, within_reach
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.replication import replicate
 from hilbench.diagnosis.resolution import check_resolution
@@ -135,8 +139,41 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
         replicate(paths, base, cands, kw, jobs)
     rank(cands)
     check_resolution(paths, base, cands, noise, kw, jobs)  # the two leaders' order on a finer base
+    cands = _within_reach_if_nothing(base, cands, noise, plans)
     base.notes.extend(n for n in plan.notes if n not in base.notes)  # what the training rows cannot identify
     return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
+
+
+def _within_reach_if_nothing(base: FitResult, cands: list[Candidate], noise: float,
+                             plans: dict[str, Any]) -> list[Candidate]:
+    """When no candidate is significant on every validation row and some of those rows drive beyond
+    training's input reach (or carry the memory of such an excursion), the single effects judged
+    again on the rows within reach alone (:mod:`hilbench.diagnosis.reach`, decision 0071). Their
+    verdicts replace the first ones only when one of them is significant, and the base's notes say
+    which rows were left out; otherwise the candidates stay as they were."""
+    if any(c.significant for c in cands):
+        return cands
+    reach = within_reach(base)
+    if reach is None or not reach.applies:
+        return cands
+    inside = restricted(base, reach)
+    every = residual_rows(inside, "all")  # the evidence from the same rows: training's and those within reach
+    again = {id(c): verdict(inside, c.effect, restricted(c.fitted, reach), every, noise, plans[c.effect])
+             for c in cands if c.effect in plans and c.fitted is not None}
+    if not any(c.significant for c in again.values()):
+        return cands
+    record = {"left_out": reach.left_out, "validation_rows": reach.validation,
+              "training_input_range": [reach.lo, reach.hi]}
+    for c in again.values():
+        c.evidence["judged_within_reach"] = record
+        c.explanation += (f"; judged on the validation rows within training's input reach ({reach.left_out} of "
+                          f"{reach.validation} left out)")
+    out = [again.get(id(c), c) for c in cands]
+    rank(out)
+    note = reach.note(base.input_unit)
+    if note not in base.notes:
+        base.notes.append(note)
+    return out
 
 
 def _add(paths: Any, base: FitResult, effect: str, kw: dict[str, Any]) -> FitResult:

@@ -82,6 +82,11 @@ RICHER_FORM_MARGIN = 0.1
 #: it; within that a memoryless polynomial is not extrapolated and its order is chosen as any
 #: effect's form (decision 0069). 2 %: a v^4 grows by 8 % of its top value there.
 REACH_MARGIN = 0.02
+#: When no row of validation finds an effect, the rows within training's input reach are judged
+#: alone (decision 0071): the envelope widens training's input range by REACH_ENVELOPE of its span,
+#: and the rows left must be at least REACH_MIN_KEPT of validation's (decision 0055's values).
+REACH_ENVELOPE = 0.05
+REACH_MIN_KEPT = 0.25
 #: A loop family is judged on an inner split only when the inner fit's rows turn the input this
 #: many times (two turns close a loop): rows that only step and hold show no loop shape to learn.
 INNER_MIN_REVERSALS = 2
