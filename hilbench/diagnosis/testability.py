@@ -170,13 +170,27 @@ def _several_rates(name: str, ctx: DataContext) -> Verdict:
 
 def _rings(ex_train: dict[str, Any], top_hz: float) -> bool:
     """Whether the training input's own content reaches HARMONIC_REACH x its drive frequency and the
-    highest drive frequency to be predicted (triangle corners: the dynamics show at one rate)."""
+    highest drive frequency to be predicted (triangle corners: the dynamics show at one rate).
+
+    Training rows without a reversal (a step and holds) have no drive frequency: all their content is
+    the step's edges, which ring the dynamics whatever the step's slew. They ring them up to the rates to be
+    predicted when that content reaches HARMONIC_REACH x the highest drive frequency of all rows.
+    Counted in samples, a step slewed over several samples at a high sample rate is no step at all
+    (randomized seed 7414: 1.2 V over 7 samples at 5 kHz, content to 476 Hz, and a 4.8-9.8 Hz
+    test run whose resonance validated 5x lower with dynamics; decision 0072)."""
+    need = _ring_need(ex_train, top_hz)
+    return need > 0 and ex_train["excited_hz"] >= need
+
+
+def _ring_need(ex_train: dict[str, Any], top_hz: float) -> float:
+    """The content (Hz) :func:`_rings` asks of the training input (0: nothing to predict)."""
     f = ex_train["frequencies_hz"]
-    return bool(f) and ex_train["excited_hz"] >= max(T.HARMONIC_REACH * f[1], top_hz)
+    return max(T.HARMONIC_REACH * f[1], top_hz) if f else T.HARMONIC_REACH * top_hz
 
 
-def _reach(ex: dict[str, Any]) -> str:
-    return f"its content reaches {ex['excited_hz']:.3g} Hz, under {T.HARMONIC_REACH:g}x its drive frequency"
+def _reach(ex_train: dict[str, Any], top_hz: float) -> str:
+    return (f"the training input's content reaches {ex_train['excited_hz']:.3g} Hz, under the "
+            f"{_ring_need(ex_train, top_hz):.3g} Hz that would ring the dynamics at the rates to predict")
 
 
 def _broadband(name: str, ctx: DataContext) -> Verdict:
@@ -184,13 +198,13 @@ def _broadband(name: str, ctx: DataContext) -> Verdict:
     if not ctx.broadband:
         if _rings(ctx.ex_train, top):
             return None  # one rate, but its corners ring the dynamics: learned and judged as they are
-        return f"{ctx.single} and no steps ({_reach(ctx.ex)}): a {name} phase lag at one frequency looks like loop width"
+        return f"{ctx.single} and no steps ({_reach(ctx.ex_train, top)}): a {name} phase lag at one frequency looks like loop width"
     if not ctx.broadband_train:
         if ctx.plan is not None:
             return CALIBRATE
         if _rings(ctx.ex_train, top):
             return None  # the training input's harmonics reach the validation's rates
-        return f"{ctx.single_train} and no steps ({_reach(ctx.ex_train)}), and {ctx.no_plan}"
+        return f"{ctx.single_train} and no steps ({_reach(ctx.ex_train, top)}), and {ctx.no_plan}"
     return None
 
 
