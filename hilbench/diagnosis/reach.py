@@ -82,7 +82,8 @@ class Reach:
         u = f" {unit}" if unit else ""
         return (f"{self.left_out} of {self.validation} validation rows drive beyond training's input range "
                 f"({self.lo:.4g} to {self.hi:.4g}{u}, widened by {100 * T.REACH_ENVELOPE:g} %) or carry the "
-                "hysteresis memory of such an excursion; judged without them, since no row of all found an effect")
+                "hysteresis memory of such an excursion; effects judged again without them, since none was "
+                "significant on every validation row")
 
 
 def within_reach(result: FitResult) -> Reach | None:
