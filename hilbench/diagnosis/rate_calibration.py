@@ -133,7 +133,7 @@ def _power_on_plan(train: Sequence[FitRun], runs: Sequence[FitRun], f_train: flo
     for r in train:
         fs = r.data.sample_rate_hz
         rest = leading_rest(r.data.input, fs)
-        if not rest or not unsettled_rest(r.data.output, rest):
+        if not rest or not unsettled_rest(r.data.output, rest, list(r.data.aux.values())):
             continue
         step = power_on_step(r.data.output, fs, rest)
         if step is not None and (best is None or step.r2 > best[0].r2):

@@ -11,7 +11,6 @@ one frequency comes at several amplitudes: those are several rates for its dampi
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -23,7 +22,7 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.input_motion import LOOP_HALF_CYCLES, LOOP_MIN_SPAN, excitation_summary
 from hilbench.diagnosis.rate_calibration import RatePlan, rate_plan
 from hilbench.identify.fitting import FitResult
-from hilbench.identify.statistics import difference_noise_std
+from hilbench.identify.statistics import aux_variation
 from hilbench.models.model import split_spec
 
 
@@ -56,32 +55,6 @@ def channel_reach(result: FitResult, channel: str) -> float:
     spread_t = float(np.sqrt(np.mean((a_t - centre) ** 2)))
     spread_v = float(np.sqrt(np.mean((a_v - centre) ** 2)))
     return max(1.0, spread_v / spread_t) if spread_t > 0 else 1.0
-
-
-def aux_variation(runs: list[np.ndarray]) -> float:
-    """How far an auxiliary channel moves beyond its noise: the range of its moving average (1 % of
-    each run) over its sample-to-sample noise std. Pure noise gives well under 1 (the average
-    removes it); a 1.5 degC drift under 0.15 degC of noise gives 10."""
-    smooth, diffs, quantum = [], [], math.inf
-    for a in runs:
-        a = a[np.isfinite(a)]
-        if a.size < 3:
-            continue
-        k = max(1, a.size // 100)
-        smooth.append(np.convolve(a, np.ones(k) / k, mode="valid"))
-        d = np.diff(a)
-        diffs.append(d)
-        nz = np.abs(d[d != 0])
-        if nz.size:
-            quantum = min(quantum, float(nz.min()))
-    if not smooth:
-        return 0.0
-    d = np.concatenate(diffs)
-    noise = difference_noise_std(d)
-    if math.isfinite(quantum):
-        noise = max(noise, quantum / math.sqrt(12.0))  # a quantised, mostly constant channel
-    s = np.concatenate(smooth)
-    return float(np.ptp(s) / max(noise, 1e-12 * max(float(np.abs(s).max()), 1.0)))
 
 
 @dataclass

@@ -208,7 +208,7 @@ class Dataset:
             history_known = r.data.chain or r.data.approach_from is not None
             kept, why = trim.keep(r.data.input, r.data.output, r.data.sample_rate_hz,
                                   lambda selector, i=i: i in match_runs([selector], runs, "--exclude"), r.key,
-                                  history_known=history_known)
+                                  history_known=history_known, channels=list(r.data.aux.values()))
             keeps.append(kept)
             notes.extend(why)
         return Dataset(self.paths, self.runs, self.keys, self.input_unit, self.output_unit, notes, keeps)

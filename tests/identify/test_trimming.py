@@ -9,7 +9,7 @@ import pytest
 from hilbench.errors import DataError, UserError
 from hilbench.identify.dataset import Dataset
 from hilbench.identify.fitting import fit
-from hilbench.identify.trimming import Trim, leading_rest, parse_window
+from hilbench.identify.trimming import Trim, leading_rest, parse_window, unsettled_rest
 from hilbench.recording.hdf5 import RecordingWriter
 
 FS = 2000.0
@@ -95,6 +95,47 @@ def test_a_capture_that_starts_settled_keeps_its_rest(tmp_path):
     path = tmp_path / "settled.h5"
     RecordingWriter(path).write_run("r", {"time": t, "input": u, "output": y}, UNITS, experiment="import",
                                     excitation="", sample_rate_hz=FS)
+    data = Dataset.load(path).trimmed(Trim(auto=True))
+    assert data.keep is not None and data.keep[0].all()
+    assert not any("left out" in n for n in data.notes)
+
+
+def _rest_with_channel(transient_um: float, follows_um: float, seed: int = 3) -> tuple[np.ndarray, np.ndarray, int]:
+    """A 0.5 s rest then a sine; the output follows a recorded temperature by ``follows_um`` per
+    degC and, when ``transient_um``, starts away from its rest level by a decaying power-on step."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 2.0, 1 / FS)
+    rest = int(0.5 * FS)
+    u = np.where(t < 0.5, 0.0, 50.0 * np.sin(2 * np.pi * 2.0 * (t - 0.5)))
+    temperature = 25.0 + 3.0 * np.sin(2 * np.pi * 2.0 * t) + rng.normal(0, 0.05, t.size)  # one cycle per rest
+    y = _pi(u) + follows_um * (temperature - 25.0) + transient_um * np.exp(-t / 0.03) + rng.normal(0, 0.01, t.size)
+    return y, temperature, rest
+
+
+def test_a_rest_the_recorded_temperature_moves_is_data_not_an_unknown_history():
+    """Decision 0073: the input holds still, but a cycling temperature moves the output; the channel
+    explains that movement, so the rest is kept (without the channel it looks like a power-on step)."""
+    y, temperature, rest = _rest_with_channel(transient_um=0.0, follows_um=0.05)
+    assert unsettled_rest(y, rest)  # the output moves during the rest ...
+    assert not unsettled_rest(y, rest, [temperature])  # ... as the recorded temperature makes it
+
+
+def test_a_power_on_step_stays_unsettled_beside_a_moving_channel():
+    y, temperature, rest = _rest_with_channel(transient_um=1.0, follows_um=0.05)
+    assert unsettled_rest(y, rest, [temperature])  # the channel explains the cycle, not the decay
+    noise_only = np.random.default_rng(4).normal(25.0, 0.05, y.size)
+    y_step, _, _ = _rest_with_channel(transient_um=1.0, follows_um=0.0)
+    assert unsettled_rest(y_step, rest, [noise_only])  # a channel that does not move explains nothing
+
+
+def test_the_trim_reads_the_runs_channels(tmp_path):
+    y, temperature, rest = _rest_with_channel(transient_um=0.0, follows_um=0.05)
+    t = np.arange(y.size) / FS
+    u = np.where(t < 0.5, 0.0, 50.0 * np.sin(2 * np.pi * 2.0 * (t - 0.5)))
+    path = tmp_path / "temperature.h5"
+    RecordingWriter(path).write_run("r", {"time": t, "input": u, "output": y, "temperature": temperature},
+                                    {**UNITS, "temperature": "degC"}, experiment="import", excitation="",
+                                    sample_rate_hz=FS)
     data = Dataset.load(path).trimmed(Trim(auto=True))
     assert data.keep is not None and data.keep[0].all()
     assert not any("left out" in n for n in data.notes)
