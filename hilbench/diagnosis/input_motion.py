@@ -164,6 +164,38 @@ def rate_spread(f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
     return max(p90 / p10 if p10 > 0 else 1.0, loops)
 
 
+def excursion_rates(u: np.ndarray, fs: float, span: float, still: np.ndarray) -> np.ndarray:
+    """Mean rates (input unit per s) of the input's monotone excursions spanning LOOP_MIN_SPAN of
+    ``span``: the stretches between holds (``still``) and reversals over which it moves one way.
+    A half cycle of a sine is one (its rate about swing x 2 f), a step is one (its swing over its
+    slew), a staircase is one per step."""
+    du = np.diff(u)
+    sign = np.sign(du)
+    sign[still[1:]] = 0.0
+    rates = []
+    start = 0
+    for k in range(1, sign.size + 1):
+        if k == sign.size or sign[k] != sign[start]:
+            if sign[start] != 0.0:
+                swing = abs(float(u[k] - u[start]))
+                if swing >= LOOP_MIN_SPAN * span:
+                    rates.append(swing * fs / (k - start))
+            start = k
+    return np.asarray(rates, dtype=float)
+
+
+def step_rate_ratio(excursions: np.ndarray, f: np.ndarray, amplitude: np.ndarray, span: float) -> float:
+    """How much faster than any part of the loops the fastest excursion moves: its mean rate over
+    pi/2 x the fastest loop's mean rate (swing x 2 f, of the half cycles spanning LOOP_MIN_SPAN of
+    ``span``). pi/2 is a sine's peak rate over its mean, so no stretch of a loop reaches a ratio
+    above 1; a step slewed in a few samples beside slow loops reaches tens. 1 without both."""
+    keep = (amplitude >= LOOP_MIN_SPAN * span) & (f > 0)
+    if not keep.any() or not excursions.size:
+        return 1.0
+    loops = float(np.max(2.0 * f[keep] * amplitude[keep]))
+    return max(1.0, float(np.max(excursions)) / (0.5 * np.pi * loops)) if loops > 0 else 1.0
+
+
 def _weighted_percentile(x: np.ndarray, weights: np.ndarray, q: float) -> float:
     """The ``q``-th percentile of ``x``, each value counted with its weight."""
     order = np.argsort(x)
@@ -180,15 +212,17 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
     over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), the
     half cycles spanning LOOP_MIN_SPAN of the input span (``loops``), the spread of their mean rates
-    (:func:`rate_spread`), their range (Hz), the longest hold (s), the number of steps and
-    of reversals, and the highest frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
+    (:func:`rate_spread`), how much faster than the loops its steps move (:func:`step_rate_ratio`),
+    their range (Hz), the longest hold (s), the number of steps and of reversals, and the highest
+    frequency the input excites (Hz, :func:`excited_bandwidth_hz`)."""
     us = [u for u in inputs if u.size]
     if span is None:
         span = max(float(np.ptp(np.concatenate(us))), 1e-12) if us else 1.0
-    freqs, amplitudes, plateau_s, jumps, excited = [], [], 0.0, 0, 0.0
+    freqs, amplitudes, plateau_s, jumps, excited, excursions = [], [], 0.0, 0, 0.0, []
     for u in us:
         excited = max(excited, excited_bandwidth_hz(u, fs))
         m = motion(u, fs, span)
+        excursions.append(excursion_rates(u, fs, span, m["still"]))
         freqs.append(half_cycle_frequencies(m["flips"], fs))
         turns = u[np.maximum(m["flips"] - 1, 0)]  # the input where each reversal turns
         amplitudes.append(np.abs(np.diff(turns)) if turns.size >= 2 else np.zeros(0))
@@ -201,10 +235,12 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     spread = float(_time_percentile(f, 90) / max(_time_percentile(f, 10), 1e-12)) if f.size >= 3 else 1.0
     amplitude = np.concatenate(amplitudes) if amplitudes else np.zeros(0)
     spread = max(spread, loop_spread(f, amplitude, span))
-    return {"frequency_spread": spread, "rate_spread": rate_spread(f, amplitude, span), "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+    steps = step_rate_ratio(np.concatenate(excursions) if excursions else np.zeros(0), f, amplitude, span)
+    return {"frequency_spread": spread, "rate_spread": rate_spread(f, amplitude, span), "step_rate_ratio": steps,
+            "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
             "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
 
 
-__all__ = ["excitation_summary", "excited_bandwidth_hz", "half_cycle_frequencies", "hold_band", "input_noise", "motion",
+__all__ = ["excitation_summary", "excited_bandwidth_hz", "excursion_rates", "step_rate_ratio", "half_cycle_frequencies", "hold_band", "input_noise", "motion",
            "rate_spread"]

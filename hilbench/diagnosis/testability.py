@@ -69,6 +69,13 @@ class Testability:
     notes: list[str] = field(default_factory=list)  # what the training rows cannot identify, for the user
 
 
+def _spread_rates(ex: dict[str, Any]) -> bool:
+    """Several drive rates for a damping: loops whose rates spread (decision 0064), or a step that moves
+    faster than any part of the loops (:func:`hilbench.diagnosis.input_motion.step_rate_ratio`): there
+    the damping's term sgn(v')|v'/Q|^m is a pulse that no rate-independent loop makes (decision 0074)."""
+    return ex["rate_spread"] >= T.SEVERAL_RATES_SPREAD or ex.get("step_rate_ratio", 1.0) >= T.SEVERAL_RATES_SPREAD
+
+
 @dataclass
 class DataContext:
     """What the requirements look at: the base model and the excitation of all and of training rows."""
@@ -92,11 +99,11 @@ class DataContext:
     def several_rates(self) -> bool:
         """Several drive rates: several frequencies, or one frequency at several amplitudes (what a
         velocity damping is a function of, :func:`hilbench.diagnosis.input_motion.rate_spread`)."""
-        return self.multi or self.ex["rate_spread"] >= T.SEVERAL_RATES_SPREAD
+        return self.multi or _spread_rates(self.ex)
 
     @property
     def several_rates_train(self) -> bool:
-        return self.multi_train or self.ex_train["rate_spread"] >= T.SEVERAL_RATES_SPREAD
+        return self.multi_train or _spread_rates(self.ex_train)
 
     @property
     def broadband(self) -> bool:
@@ -132,12 +139,12 @@ def _several_rates(name: str, ctx: DataContext) -> Verdict:
     frequency polynomials, or one frequency at several amplitudes for its damping, whose gain and
     power law act on the rate itself (one gain on the loop since decision 0018, not a weight per
     operator that one rate cannot fix). At one rate a damping's loop is a hysteresis loop
-    (decision 0064)."""
+    (decision 0064), unless a step moves faster than the loops (decision 0074)."""
     if not ctx.several_rates:
-        return f"{ctx.single} at one amplitude: {name} cannot be separated from hysteresis"
+        return f"{ctx.single} at one amplitude, and no step faster than its loops: {name} cannot be separated from hysteresis"
     if not ctx.several_rates_train:
-        return (f"{ctx.single_train}, at one amplitude: {name} cannot be separated from hysteresis in training "
-                "(train on two or more rates to test it)")
+        return (f"{ctx.single_train}, at one amplitude and no step faster than its loops: {name} cannot be separated "
+                "from hysteresis in training (train on two or more rates, or with steps, to test it)")
     return None
 
 

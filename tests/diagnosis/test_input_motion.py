@@ -88,3 +88,19 @@ def test_one_frequency_at_several_amplitudes_is_several_rates() -> None:
     assert steady["frequency_spread"] < 1.5 and steady["rate_spread"] < 1.1
     # half cycles below LOOP_MIN_SPAN of the span are wiggles, not rates
     assert rate_spread(np.array([2.0, 2.0, 2.0, 2.0]), np.array([1.0, 1.0, 0.01, 0.01]), 1.0) == 1.0
+
+
+def test_a_step_faster_than_the_loops_is_another_rate() -> None:
+    """Decision 0074: a 2 Hz sine at one amplitude has one rate, and no stretch of it moves faster
+    than pi/2 x its mean rate; a step slewed over 5 samples beside it moves tens of times faster."""
+    t = np.arange(int(3 * FS)) / FS
+    sine = np.sin(2 * np.pi * 2.0 * t)
+    assert excitation_summary([sine], FS)["step_rate_ratio"] == 1.0
+    part = sine[int(0.458 * FS):int(0.541 * FS)]  # -30 to +30 degrees: the sine's fastest stretch
+    assert excitation_summary([sine, part], FS, 2.0)["step_rate_ratio"] == 1.0
+    step = np.concatenate([np.zeros(500), np.linspace(0.0, 0.8, 6)[1:], np.full(500, 0.8), sine + 0.8])
+    with_step = excitation_summary([step], FS)
+    assert with_step["rate_spread"] < 1.5 and with_step["frequency_spread"] < 1.5  # one rate by the loops ...
+    assert with_step["step_rate_ratio"] > 10.0  # ... and a step: 0.8 in 5 ms against 8 per s at most
+    small = np.concatenate([np.zeros(500), np.linspace(0.0, 0.1, 6)[1:], np.full(500, 0.1), sine + 0.1])
+    assert excitation_summary([small], FS)["step_rate_ratio"] == 1.0  # under LOOP_MIN_SPAN of the span: a wiggle

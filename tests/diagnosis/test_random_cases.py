@@ -195,6 +195,10 @@ CASES = [
     # against 0.0096 on the whole run, and nothing was significant. The channel explains the rest's
     # movement, so the rest is data (decision 0073)
     pytest.param(7736, "temperature", "cycling", id="7736-temperature-moves-the-rest-pmpi"),
+    # a velocity damping trained on one sine rate, with five steps slewed far faster than the loops:
+    # rate-dependence was untestable ("one drive frequency at one amplitude") and nothing was
+    # significant; the steps' pulses are a second rate (decision 0074): 1.92 -> 0.15 um
+    pytest.param(7708, "rate-dependence", "velocity-damping", id="7708-damping-seen-at-the-steps-pi1"),
 ]
 
 

@@ -258,3 +258,34 @@ def test_a_slewed_step_in_training_rings_the_dynamics_of_a_one_rate_test_run(tmp
     assert first.significant and first.effect == "dynamics"
     old, new = first.evidence["validation_rmse"]
     assert new < 0.5 * old
+
+
+def _damped_runs(path: Path, train_steps: bool) -> Path:
+    """A velocity damping on a play rig: training at one 5 Hz sine amplitude, with or without a
+    staircase of slewed steps before it; the test run at 10 Hz."""
+    damping = {"hysteresis": HYSTERESIS,
+               "rate_dependence": {"mode": "damping", "coefficient": 0.05, "exponent": 1.0, "reference_rate": 2 * np.pi * 10}}
+    rng = np.random.default_rng(7)
+    writer = RecordingWriter(path)
+    sine = _drive("sine", 5.0)
+    train = np.concatenate([_slewed_steps([-60.0, 0.0, 60.0, -20.0, -60.0], 0.15, 5), sine]) if train_steps else sine
+    for name, u in (("train", train), ("test", _drive("sine", 10.0))):
+        plant = Plant(check_plant(damping, "test", FS), FS, [SensorModel("output")], seed=0)
+        pre = int(0.2 * FS)
+        y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
+        writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
+                         UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+    return path
+
+
+def test_steps_beside_one_rate_of_loops_make_a_damping_testable(tmp_path: Path) -> None:
+    """Decision 0074: trained on one sine rate, a damping's loop is a hysteresis loop and the
+    effect is untestable; a step moving far faster than the loops shows the damping's pulse, which no
+    rate-independent loop makes, so it is tested and carries over to the 10 Hz test run."""
+    one_rate = diagnose(_damped_runs(tmp_path / "sine.h5", False), "pi", train=["train"], test=["test"], jobs=1)
+    reasons = {u["effect"]: u["reason"] for u in one_rate.untestable}
+    assert "no step faster than its loops" in reasons["rate-dependence"]
+    stepped = diagnose(_damped_runs(tmp_path / "steps.h5", True), "pi", train=["train"], test=["test"], jobs=1)
+    assert "rate-dependence" not in {u["effect"] for u in stepped.untestable}
+    first = stepped.effects[0]
+    assert first.effect == "rate-dependence" and first.significant, [(c.effect, c.significant) for c in stepped.effects]
