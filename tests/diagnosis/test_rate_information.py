@@ -36,6 +36,19 @@ def _drive(kind: str, f: float) -> np.ndarray:
 
 HYSTERESIS = {"model": "play", "input_scale": 90.0, "output_scale": 6.0, "linear_gain": 0.4,
               "thresholds": [0.1, 0.3, 0.5, 0.7], "weights": [0.3, 0.2, 0.15, 0.1]}
+#: a velocity damping of 003 eq. 6 on that loop, m = 1
+DAMPING = {"hysteresis": HYSTERESIS,
+           "rate_dependence": {"mode": "damping", "coefficient": 0.05, "exponent": 1.0, "reference_rate": 2 * np.pi * 10}}
+
+
+def _write_run(writer: RecordingWriter, tables: dict, name: str, u: np.ndarray, rng: np.random.Generator) -> None:
+    """Simulate the plant ``tables`` on the command ``u`` (settled at its first value before the
+    recording starts) and write the run with 2 nm of sensor noise."""
+    plant = Plant(check_plant(tables, "test", FS), FS, [SensorModel("output")], seed=0)
+    pre = int(0.2 * FS)
+    y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
+    writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
+                     UNITS, experiment="import", excitation="", sample_rate_hz=FS)
 
 
 def _recording(path: Path, kind: str, rates=(("10_hz", 10.0), ("60_hz", 60.0)), effect: dict | None = None) -> Path:
@@ -44,12 +57,8 @@ def _recording(path: Path, kind: str, rates=(("10_hz", 10.0), ("60_hz", 60.0)), 
     for name, f in rates:
         tables = {"hysteresis": HYSTERESIS,
                   **(effect or {"dynamics": {"kind": "second-order", "zeta": 0.05, "natural_frequency_hz": RESONANCE_HZ}})}
-        plant = Plant(check_plant(tables, "test", FS), FS, [SensorModel("output")], seed=0)
         u = _drive(kind, f)
-        pre = int(0.2 * FS)  # settled at the first command before the recording starts
-        y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
-        writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
-                         UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+        _write_run(writer, tables, name, u, rng)
     return path
 
 
@@ -101,15 +110,8 @@ def test_one_run_sweeping_its_rate_is_split_so_training_sees_the_span(tmp_path: 
     from hilbench.identify.sweep import half_cycles
 
     u = _chirp(4.0, 40.0, 6.0)
-    tables = {"hysteresis": HYSTERESIS, "rate_dependence": {"mode": "damping", "coefficient": 0.05, "exponent": 1.0,
-                                                           "reference_rate": 2 * np.pi * 10}}
-    plant = Plant(check_plant(tables, "test", FS), FS, [SensorModel("output")], seed=0)
-    pre = int(0.2 * FS)
-    y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
     path = tmp_path / "chirp.h5"
-    RecordingWriter(path).write_run("sweep", {"time": np.arange(u.size) / FS, "input": u,
-                                              "output": y + np.random.default_rng(4).normal(0, 0.002, u.size)},
-                                    UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+    _write_run(RecordingWriter(path), DAMPING, "sweep", u, np.random.default_rng(4))
     result = fit(path, "pi")
     run = result.runs[0]
     mid, f = half_cycles(u, FS)
@@ -139,18 +141,12 @@ def test_damping_acts_at_the_recorded_rates_of_steps_training_never_saw(tmp_path
     predicts it."""
     from hilbench.identify.fitting import fit
 
-    damping = {"hysteresis": HYSTERESIS,
-               "rate_dependence": {"mode": "damping", "coefficient": 0.05, "exponent": 1.0, "reference_rate": 2 * np.pi * 10}}
     rng = np.random.default_rng(5)
     path = tmp_path / "steps.h5"
     writer = RecordingWriter(path)
     steps = _slewed_steps([-60.0, 0.0, 60.0, -20.0, 40.0, -60.0, 20.0, 60.0, -40.0], 0.15, 5)
     for name, u in (("5_hz", _drive("sine", 5.0)), ("10_hz", _drive("sine", 10.0)), ("steps", steps)):
-        plant = Plant(check_plant(damping, "test", FS), FS, [SensorModel("output")], seed=0)
-        pre = int(0.2 * FS)
-        y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
-        writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
-                         UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+        _write_run(writer, DAMPING, name, u, rng)
     base = fit(path, "pi", train=["5hz", "10hz"], test=["steps"]).metrics["validation"]["rmse"]
     rate = fit(path, "pi+rate-dependence(form=damping)", train=["5hz", "10hz"], test=["steps"]).metrics["validation"]["rmse"]
     assert rate < 0.3 * base, (base, rate)  # measured 0.437 -> 0.067 um (held at 5 % of the span: 0.288)
@@ -162,11 +158,7 @@ def _rate_run(path: Path, tables: dict, segments: list[tuple[float, float]]) -> 
     writer = RecordingWriter(path)
     for name, parts in (("train", segments), ("test", [(7.0, 1.0)])):
         u = np.concatenate([-60.0 * np.cos(2 * np.pi * f * np.arange(int(s * FS)) / FS) for f, s in parts])
-        plant = Plant(check_plant(tables, "test", FS), FS, [SensorModel("output")], seed=0)
-        pre = int(0.2 * FS)
-        y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
-        writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
-                         UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+        _write_run(writer, tables, name, u, rng)
     return path
 
 
@@ -188,7 +180,6 @@ def test_the_rate_form_is_chosen_on_blocks_held_back_across_the_training_rates(t
     specs = ["pi+rate-dependence(form=damping)", "pi+rate-dependence(form=frequency)"]
     chosen = choose_by_inner_blocks(path, specs, kw, base.model)
     assert chosen == specs[0 if truth == "damping" else 1]
-
 
 
 @pytest.mark.parametrize(("k_poly", "order"), [([1.0, 0.04], 1), ([1.0, 0.12, -0.012, 0.0004], 3)])
@@ -263,18 +254,12 @@ def test_a_slewed_step_in_training_rings_the_dynamics_of_a_one_rate_test_run(tmp
 def _damped_runs(path: Path, train_steps: bool) -> Path:
     """A velocity damping on a play rig: training at one 5 Hz sine amplitude, with or without a
     staircase of slewed steps before it; the test run at 10 Hz."""
-    damping = {"hysteresis": HYSTERESIS,
-               "rate_dependence": {"mode": "damping", "coefficient": 0.05, "exponent": 1.0, "reference_rate": 2 * np.pi * 10}}
     rng = np.random.default_rng(7)
     writer = RecordingWriter(path)
     sine = _drive("sine", 5.0)
     train = np.concatenate([_slewed_steps([-60.0, 0.0, 60.0, -20.0, -60.0], 0.15, 5), sine]) if train_steps else sine
     for name, u in (("train", train), ("test", _drive("sine", 10.0))):
-        plant = Plant(check_plant(damping, "test", FS), FS, [SensorModel("output")], seed=0)
-        pre = int(0.2 * FS)
-        y = plant.simulate(np.concatenate([np.full(pre, u[0]), u])).true_output[pre:]
-        writer.write_run(name, {"time": np.arange(u.size) / FS, "input": u, "output": y + rng.normal(0, 0.002, u.size)},
-                         UNITS, experiment="import", excitation="", sample_rate_hz=FS)
+        _write_run(writer, DAMPING, name, u, rng)
     return path
 
 
