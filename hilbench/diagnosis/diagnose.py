@@ -47,7 +47,7 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis.base_check import alternatives, fit_alternative, wrong_base
-from hilbench.diagnosis.base_polish import polished_base
+from hilbench.diagnosis.base_polish import polished_base, shared_base_shape
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.reach import restricted, within_reach
 from hilbench.diagnosis.refit import fit_effect
@@ -129,6 +129,8 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
         others = alternatives(base, noise)  # the alternatives start from the base's shape: refit them
         other_fits = run_tasks([partial(fit_alternative, paths, base, spec, kw) for spec in others], jobs,
                                shared=paths.runs)
+    # every significant refit on the best base shape any of them found (diagnosis/base_polish.py)
+    cands = shared_base_shape(paths, base, cands, every, noise, kw, plans, jobs)
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
     other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
