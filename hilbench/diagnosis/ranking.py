@@ -30,7 +30,7 @@ def free_parameters(c: Candidate) -> int:
     return int(model.weights.size) + sum(1 for p in model.shape_params() if p.upper > p.lower)
 
 
-def _pattern_decides_for(a: Candidate, b: Candidate) -> bool:
+def pattern_decides_for(a: Candidate, b: Candidate) -> bool:
     """Whether the residual's pattern prefers ``a`` over ``b`` by SIGNATURE_MARGIN. Patterns do not
     decide when nested (the richer one explains more of any residual) nor when the drive cannot
     tell them apart: a purely even residual shows an odd signature of about the drive's
@@ -46,7 +46,7 @@ def _pattern_decides_for(a: Candidate, b: Candidate) -> bool:
     return a.evidence["signature"] >= b.evidence["signature"] + T.SIGNATURE_MARGIN
 
 
-def _trains_far_better(a: Candidate, b: Candidate) -> bool:
+def trains_far_better(a: Candidate, b: Candidate) -> bool:
     """Whether ``a``'s refit fits the training rows PARSIMONY_TRAINING_RATIO times better than ``b``'s."""
     ta, tb = a.fitted.metrics["train"]["rmse"], b.fitted.metrics["train"]["rmse"]
     return bool(ta > 0 and tb >= T.PARSIMONY_TRAINING_RATIO * ta)
@@ -211,16 +211,16 @@ def _break_ties(cands: list[Candidate]) -> None:
             tied.append((c, p_top_better))
     best, best_p, reason = top, 1.0, ""
     for c, p in tied:  # (rate-dependence, creep: no pattern to weigh, the gain order stands)
-        if _pattern_decides_for(c, best) and not nested(_signature_name(top.effect), _signature_name(c.effect)):
+        if pattern_decides_for(c, best) and not nested(_signature_name(top.effect), _signature_name(c.effect)):
             best, best_p, reason = c, p, "signature"
     if best is top:
         fewest, rms_top = free_parameters(top), rms(e_top)
         for c, p in tied:
             if "pair" in c.evidence and "pair" not in top.evidence:
                 continue  # a pair passes a single only by MIN_GAIN (_pairs_behind_equal_singles), not by counting
-            if _pattern_decides_for(top, c):
+            if pattern_decides_for(top, c):
                 continue  # the residual's pattern already chose the leader
-            if _trains_far_better(top, c):
+            if trains_far_better(top, c):
                 continue  # the leader's extra parameters explain the training rows, not flexibility
             if free_parameters(c) < fewest and rms(validation_errors(c.fitted)) <= rms_top * (1.0 + T.PARSIMONY_MARGIN):
                 best, best_p, reason, fewest = c, p, "parsimony", free_parameters(c)

@@ -20,8 +20,11 @@ leaders* survives a finer base, when the data say the base's resolution may matt
 Both effects are then refitted on the base at RESOLUTION_FACTOR x its operators, each in the form
 the data choose there, and the rival goes first when its finer refit validates more than MIN_GAIN
 below the leader's, on the finer base and on the user's (decision 0070: a finer base that only
-makes the leader worse has not shown its lead to be the base's). The user's base is unchanged: the
-finer refits only order the candidates (docs/decisions/0060).
+makes the leader worse has not shown its lead to be the base's). When the finer base validates the
+two alike (the rival within PARSIMONY_MARGIN of the leader), the lead was the base's resolution too,
+and the ranking's tie rules decide between them: the residual's pattern, then the fewer free
+parameters (decision 0076). The user's base is unchanged: the finer refits only order the
+candidates (docs/decisions/0060).
 
 A delay and a lag on a ``pmpi`` base are checked so whatever their margins (decision 0068). The
 M-play operator's eta is a delay coefficient of its own (004 eq. 6): at the reversals it bends the
@@ -43,7 +46,8 @@ from typing import Any
 
 from hilbench import progress
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.ranking import DELAY_AND_LAG, reorderable
+from hilbench.diagnosis.ranking import (DELAY_AND_LAG, free_parameters, pattern_decides_for, reorderable,
+                                        trains_far_better)
 from hilbench.diagnosis.refit import fit_effect, spec_parts
 from hilbench.diagnosis.verdict import Candidate, relative_gain, rms, validation_errors
 from hilbench.diagnosis.workers import run_tasks
@@ -58,6 +62,9 @@ FINER_BASES = ("pi", "pi1", "mpi", "pd")
 #: Bases whose operators carry a searched delay coefficient (M-play's eta): a delay and a lag are
 #: checked on a finer one whatever their margins (module doc).
 ETA_BASES = ("pmpi",)
+#: What put a check in motion, as its record says.
+DELAY_OR_LAG = "a delay and a lag on an eta base"
+CLOSE_LEADERS = "close leaders above the noise"
 
 
 def finer_spec(spec: str) -> str | None:
@@ -103,7 +110,7 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
     if spec is None:
         return
     rival = _delay_or_lag_rival(base.spec, cands)
-    trigger = "a delay and a lag on an eta base" if rival is not None else "close leaders above the noise"
+    trigger = DELAY_OR_LAG if rival is not None else CLOSE_LEADERS
     v_leader = rms(validation_errors(leader.fitted))
     if rival is None:
         if not leader_train > band:
@@ -147,5 +154,35 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
             f"; ranked before {leader.effect}, which validated {v_leader:.4g} against its {v_rival:.4g}: on a base "
             f"of {factor}x the operators it validates at {f_rival:.4g} against {f_leader:.4g}, so "
             f"{leader.effect}'s lead came from the base's resolution")
+    elif trigger == CLOSE_LEADERS and (reason := _tie_on_the_finer_base(leader, rival, min(f_leader, v_leader), f_rival)):
+        cands.remove(rival)
+        cands.insert(0, rival)
+        rival.evidence["ranked_by_resolution"] = {**record, "over": leader.effect, "tie_broken_by": reason}
+        rival.explanation += (
+            f"; ranked before {leader.effect}, which validated {v_leader:.4g} against its {v_rival:.4g}: on a base "
+            f"of {factor}x the operators the two validate alike ({f_rival:.4g} against {f_leader:.4g}), and "
+            + ("the error's pattern fits it better" if reason == "signature" else
+               f"it needs fewer parameters ({free_parameters(rival)} against {free_parameters(leader)})"))
     else:
         leader.evidence["resolution_check"] = record
+
+
+def _tie_on_the_finer_base(leader: Candidate, rival: Candidate, best_leader: float, f_rival: float) -> str | None:
+    """``signature`` or ``parsimony`` when the finer base cannot tell the two leaders apart and the
+    ranking's tie rules (:func:`hilbench.diagnosis.ranking.rank`, 1 and 2) choose the rival; else None.
+
+    The user's base put the leader ahead by more than the tie margins; if the finer base validates
+    the rival within PARSIMONY_MARGIN of the leader's best showing on either base (``best_leader``,
+    as decision 0070 compares), that lead was the base's resolution, and the
+    two explain the data alike: then what decides a tie on any base decides here, the residual's
+    pattern first, then the fewer free parameters (decision 0076; randomized seed 8500, an even
+    v^2 on a one-sided drive under ``pi1``: a saturation with 25 parameters validated 0.0118 um
+    against v^2's 0.0125 with 12, and on 30 operators 0.00694 against 0.00702, at the noise's
+    0.0063)."""
+    if f_rival > best_leader * (1.0 + T.PARSIMONY_MARGIN):
+        return None
+    if pattern_decides_for(rival, leader):
+        return "signature"
+    if pattern_decides_for(leader, rival) or trains_far_better(leader, rival):
+        return None
+    return "parsimony" if free_parameters(rival) < free_parameters(leader) else None

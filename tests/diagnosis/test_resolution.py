@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.resolution import check_resolution, finer_spec
+from hilbench.diagnosis.resolution import _tie_on_the_finer_base, check_resolution, finer_spec
 from hilbench.diagnosis.verdict import Candidate
 
 N = 2000
@@ -210,3 +210,33 @@ def test_a_finer_base_that_only_worsens_the_leader_does_not_reorder(tmp_path) ->
     assert fine["saturation"] > coarse["saturation"]
     assert fine["asymmetry"] < (1.0 - T.MIN_GAIN) * fine["saturation"]
     assert not fine["asymmetry"] < (1.0 - T.MIN_GAIN) * coarse["saturation"]
+
+
+def _tied(effect: str, n_weights: int, signature: float, train_rmse: float = 1.0) -> Candidate:
+    """A candidate for the finer-base tie rule: its weights, its residual pattern on a one-sided
+    drive (parity overlap 0.97, where even and odd patterns cannot decide) and its training rmse."""
+    c = _candidate(effect, 1.0, train_rmse=train_rmse)
+    c.fitted.model = SimpleNamespace(weights=np.zeros(n_weights), shape_params=lambda: [])
+    c.evidence.update(signature=signature, parity_overlap=0.97)
+    return c
+
+
+def test_a_tie_on_the_finer_base_goes_to_the_fewer_parameters() -> None:
+    """Decision 0076 (randomized seed 8500): a saturation of 25 parameters led an even term of 12 by
+    6 % on the user's base, and on the finer base the two validate within 1.2 %: the lead was the
+    resolution, and parsimony decides. Not when the rival is PARSIMONY_MARGIN worse there, nor when
+    the leader trains PARSIMONY_TRAINING_RATIO times better."""
+    leader, rival = _tied("saturation", 24, 0.88), _tied("asymmetry", 12, 0.88)
+    assert _tie_on_the_finer_base(leader, rival, 0.00694, 0.00702) == "parsimony"
+    assert _tie_on_the_finer_base(leader, rival, 0.00694, 0.00694 * (1.0 + 2 * T.PARSIMONY_MARGIN)) is None
+    assert _tie_on_the_finer_base(rival, leader, 0.00694, 0.00702) is None  # the richer one is no tie-winner
+    far_better = _tied("saturation", 24, 0.88, train_rmse=1.0 / (T.PARSIMONY_TRAINING_RATIO + 0.1))
+    assert _tie_on_the_finer_base(far_better, rival, 0.00694, 0.00702) is None
+
+
+def test_a_tie_on_the_finer_base_goes_first_to_the_pattern_where_the_drive_tells() -> None:
+    leader, rival = _tied("asymmetry", 12, 0.30), _tied("saturation", 24, 0.90)
+    for c in (leader, rival):
+        c.evidence["parity_overlap"] = 0.05  # a bipolar drive: even and odd patterns are apart
+    assert _tie_on_the_finer_base(leader, rival, 1.0, 1.02) == "signature"
+    assert _tie_on_the_finer_base(rival, leader, 1.0, 1.02) is None  # the leader's pattern decides for it
