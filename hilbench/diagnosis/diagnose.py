@@ -46,7 +46,7 @@ from functools import partial
 from typing import Any
 
 from hilbench import progress
-from hilbench.diagnosis.base_check import alternatives, fit_alternative, wrong_base
+from hilbench.diagnosis.base_check import alternatives, finer_base_check, fit_alternative, wrong_base
 from hilbench.diagnosis.base_polish import polished_base, shared_base_shape
 from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.reach import restricted, within_reach
@@ -134,6 +134,7 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
     other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
     if other_base is not None:
+        finer_base_check(paths, base, other_base, cands, kw)  # not the current family at too few operators
         cands.append(other_base)
     if other_base is None or not other_base.significant:
         # gains the validation rows are too short to confirm alone; not on a base the data refuse,

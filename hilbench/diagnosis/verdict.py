@@ -323,6 +323,13 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
         return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
                 "text": f"the best single effect's validation rmse ({best:.3g}{u}) is {ratio:.2g}x the other base's "
                         f"({new_v:.3g}{u}), less than the {T.WRONG_BASE_RATIO:g}x required"}
+    if "x_lower_than_a_finer_" in key and "finer_base" in ev:  # the wrong-base check on a finer current base
+        finer = float(ev["finer_base"]["validation_rmse"])
+        ratio = finer / new_v if new_v > 0 else math.inf
+        return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
+                "text": f"the current family at a finer resolution ({ev['finer_base']['spec']}) validates at "
+                        f"{finer:.3g}{u}, {ratio:.2g}x the other base's ({new_v:.3g}{u}), less than the "
+                        f"{T.WRONG_BASE_RATIO:g}x required: the lead is the current base's resolution"}
     if key == "pair_over_each_single" and "gain_over_best_single" in ev:  # a pair of effects
         over = float(ev["gain_over_best_single"])
         return {"check": key, "measured": over, "required": f"> {T.MIN_GAIN:g}",

@@ -33,6 +33,9 @@ def test_pmpi_on_the_duhem_rig_is_a_wrong_base_and_duhem_fits(duhem_sweep):
     assert suggested == "duhem-d" or tried[suggested] <= 2.0 * tried["duhem-d"]
     old, new = best.evidence["validation_rmse"]
     assert new * 2.0 <= old
+    # not the current family at too few operators: pmpi at twice its operators stays far above (decision 0077)
+    finer = best.evidence["finer_base"]
+    assert finer["spec"].startswith("pmpi(n=20)") and new * 2.0 <= finer["validation_rmse"], finer
 
 
 def test_a_right_base_is_not_called_wrong(tmp_path):

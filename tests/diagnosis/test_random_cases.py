@@ -207,6 +207,10 @@ CASES = [
     # (12); on 30 operators the two validate alike (0.0069 and 0.0070 um, the noise 0.0063), so the
     # lead was the base's resolution and the fewer parameters decide (decision 0076)
     pytest.param(8500, "asymmetry", "even-2", id="8500-even-term-tied-on-the-finer-base-pi1"),
+    # four play operators between pi's ten even thresholds, and an even v^2: pmpi (its etas move where
+    # the operators turn) validated 2.02x below pi+asymmetry and the base was reported wrong; pi at 30
+    # operators with the v^2 validates within 1.1x of pmpi, so the lead is resolution (decision 0077)
+    pytest.param(7538, "asymmetry", "even-2", id="7538-not-another-base-but-a-finer-one-pi"),
 ]
 
 
