@@ -41,7 +41,7 @@ times in s, gains as fractions.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
 
@@ -161,7 +161,10 @@ def _within_reach_if_nothing(base: FitResult, cands: list[Candidate], noise: flo
         return cands
     inside = restricted(base, reach)
     every = residual_rows(inside, "all")  # the evidence from the same rows: training's and those within reach
-    again = {id(c): verdict(inside, c.effect, restricted(c.fitted, reach), every, noise, plans[c.effect])
+    # judged on the rows within reach, but the refit a candidate carries stays the one scored on every
+    # validation row: --auto continues from it, and the next round's comparisons need the same rows
+    again = {id(c): replace(verdict(inside, c.effect, restricted(c.fitted, reach), every, noise, plans[c.effect]),
+                            fitted=c.fitted)
              for c in cands if c.effect in plans and c.fitted is not None}
     if not any(c.significant for c in again.values()):
         return cands

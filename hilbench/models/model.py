@@ -197,11 +197,6 @@ class Model:
         ramp = RunData(u, None, {k: np.full(n, v) for k, v in aux.items()}, self.sample_rate_hz or 1.0)
         self.static_columns(ramp, states)
 
-    def _sequence(self, runs: list[RunData]):
-        """Yield (run, static blocks) with memory chained between runs marked ``chain``."""
-        for run, states in self._walk(runs):
-            yield run, self.static_columns(run, states)
-
     def _walk(self, runs: list[RunData]):
         """Yield (run, states ready for it): memory chained between runs marked ``chain``, else
         fresh (after the rig's approach ramp when known). The consumer advances the states."""
@@ -217,10 +212,6 @@ class Model:
                     self.advance(states, float(run.approach_from), float(run.input[0]), first_aux)
             yield run, states
             previous = run
-
-    def design_runs(self, runs: list[RunData]) -> list[tuple[np.ndarray, list[str], np.ndarray, np.ndarray]]:
-        """Regressor matrices of runs (memory chained where marked), dynamics applied."""
-        return [self.apply_dynamics(run, blocks) for run, blocks in self._sequence(runs)]
 
     def design(self, run: RunData) -> tuple[np.ndarray, list[str], np.ndarray, np.ndarray]:
         """Regressor matrix of one run from fresh memory, dynamics applied, names and weight bounds."""

@@ -54,3 +54,18 @@ def test_a_creep_masked_by_the_memory_of_an_excursion_is_found_within_reach(fold
     assert old < d.metrics["validation"]["rmse"]  # judged on fewer rows than every validation row
     assert new < 0.5 * old
     assert any("beyond training's input range" in n for n in d.result.notes)
+
+
+def test_auto_continues_from_a_refit_scored_on_every_validation_row(folder):
+    # the same case with --auto: the candidate judged within reach carries the refit scored on every
+    # validation row, so the next round compares models on the same rows (it raised a shape error
+    # when the carried refit had only the rows within reach)
+    case = DC.draw_case(7141)
+    paths, kw = DC.write_case(case, folder / "c7141-auto")
+    d = diagnose(paths, case.spec, jobs=1, auto=True, max_steps=2, **kw)
+    first = d.rounds[0].effects[0]
+    assert first.effect == "creep" and "judged_within_reach" in first.evidence
+    rows = sum(int(r.validation.sum()) for r in d.rounds[0].result.runs)
+    assert sum(int(r.validation.sum()) for r in first.fitted.runs) == rows
+    assert [s["added"] for s in d.steps][:2] == [None, "creep"]
+    assert d.steps[1]["validation"]["rmse"] == pytest.approx(first.fitted.metrics["validation"]["rmse"])
