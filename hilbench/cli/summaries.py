@@ -98,5 +98,11 @@ def diagnosis_lines(d: dict[str, Any]) -> list[str]:
     if d.get("steps"):
         lines.append("step  spec                                   added             validation rmse")
         for k, s in enumerate(d["steps"]):
-            lines.append(f"{k:>4d}  {s['spec']:<38s} {str(s['added'] or '-'):<17s} {s['validation']['rmse']:.4g}")
+            line = f"{k:>4d}  {s['spec']:<38s} {str(s['added'] or '-'):<17s} {s['validation']['rmse']:.4g}"
+            if s.get("within_reach"):
+                reach = s["within_reach"]
+                before, after = reach["validation_rmse"]
+                line += (f"  (judged within training's input reach, {reach['left_out']} of {reach['validation_rows']} "
+                         f"rows left out: {before:.4g} -> {after:.4g})")
+            lines.append(line)
     return lines

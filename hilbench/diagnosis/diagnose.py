@@ -189,9 +189,16 @@ def _add(paths: Any, base: FitResult, effect: str, kw: dict[str, Any]) -> FitRes
     return fit_effect(paths, base, effect, kw, plan.plan if effect in plan.calibrated else None)
 
 
-def _step(result: FitResult, added: str | None) -> dict[str, Any]:
-    return {"spec": result.spec, "added": added, "validation": dict(result.metrics["validation"]),
+def _step(result: FitResult, added: str | None, judged: Candidate | None = None) -> dict[str, Any]:
+    """One row of the steps table. When the added effect was judged on the validation rows within
+    training's input reach (decision 0071), the row also says so and gives the rmse there: on every
+    validation row the error may barely move, since the rows beyond reach hold the extrapolation."""
+    step = {"spec": result.spec, "added": added, "validation": dict(result.metrics["validation"]),
             "train": dict(result.metrics["train"])}
+    if judged is not None and "judged_within_reach" in judged.evidence:
+        before, after = judged.evidence["validation_rmse"][:2]
+        step["within_reach"] = {**judged.evidence["judged_within_reach"], "validation_rmse": [before, after]}
+    return step
 
 
 def _keep_polished(steps: list[dict[str, Any]], base: FitResult, result: Diagnosis) -> None:
@@ -199,7 +206,7 @@ def _keep_polished(steps: list[dict[str, Any]], base: FitResult, result: Diagnos
     refit is the step's model: an added effect's step records it (the starting step stays what the
     user brought)."""
     if result.result is not base and len(steps) > 1:
-        steps[-1] = _step(result.result, steps[-1]["added"])
+        steps[-1] = {**steps[-1], **_step(result.result, steps[-1]["added"])}  # keeps how it was judged
 
 
 def diagnose(
@@ -246,7 +253,7 @@ def diagnose(
                 best = result.best
                 advance(1, f"diagnose --auto: step {len(steps)}, added {best.effect}")
                 base = best.fitted if best.fitted is not None else fit(paths, best.spec, **kw)
-                steps.append(_step(base, best.effect))
+                steps.append(_step(base, best.effect, best))
                 result = _diagnose_once(paths, base, kw, jobs)
                 _keep_polished(steps, base, result)
                 rounds.append(result)

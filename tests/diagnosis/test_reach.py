@@ -69,3 +69,7 @@ def test_auto_continues_from_a_refit_scored_on_every_validation_row(folder):
     assert sum(int(r.validation.sum()) for r in first.fitted.runs) == rows
     assert [s["added"] for s in d.steps][:2] == [None, "creep"]
     assert d.steps[1]["validation"]["rmse"] == pytest.approx(first.fitted.metrics["validation"]["rmse"])
+    # the step says on which rows the effect was judged, and the rmse there
+    reach = d.steps[1]["within_reach"]
+    assert reach["validation_rmse"] == first.evidence["validation_rmse"]
+    assert 0 < reach["left_out"] < reach["validation_rows"] == rows
