@@ -496,8 +496,14 @@ def _steps_section(d: Diagnosis) -> str:
     for i, s in enumerate(d.steps):
         val = s.get("validation") or {}
         trn = s.get("train") or {}
+        added = s.get("added") or "(start)"
+        reach = s.get("within_reach")
+        if reach:  # judged on the validation rows within training's input reach (decision 0071)
+            before, after = reach["validation_rmse"]
+            added += (f" (judged within training's input reach, {reach['left_out']} of "
+                      f"{reach['validation_rows']} rows left out: {_num(before)} → {_num(after)})")
         rows.append([(str(i), "num"), (_e(s.get("spec", "")), ""),
-                     (_e(s.get("added") or "(start)"), ""),
+                     (_e(added), ""),
                      (_e(_num(val.get("rmse", float("nan")))), "num"),
                      (_e(_num(trn.get("rmse", float("nan")))), "num")])
         classes.append("final" if i == len(d.steps) - 1 else "")

@@ -11,9 +11,11 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import diagnosis_cases as DC
 
+from hilbench.cli.summaries import diagnosis_lines
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.reach import outside_envelope
+from hilbench.report.diagnosis_report import _steps_section
 
 
 def test_an_excursion_and_its_memory_are_outside_until_the_opposite_end_wipes_it():
@@ -73,3 +75,7 @@ def test_auto_continues_from_a_refit_scored_on_every_validation_row(folder):
     reach = d.steps[1]["within_reach"]
     assert reach["validation_rmse"] == first.evidence["validation_rmse"]
     assert 0 < reach["left_out"] < reach["validation_rows"] == rows
+    lines = diagnosis_lines(d.to_json())
+    step = next(line for line in lines if line.strip().startswith("1  ") and "creep" in line)
+    assert f"{reach['left_out']} of {rows} rows left out" in step
+    assert "rows left out: " in _steps_section(d)  # the HTML report's steps table too
