@@ -208,6 +208,24 @@ def _time_percentile(f: np.ndarray, q: float) -> float:
     return _weighted_percentile(f, 1.0 / f, q)
 
 
+def drive_frequencies(f: np.ndarray, amplitude: np.ndarray, span: float) -> list[float]:
+    """The range (Hz) of the input's drive frequencies, counted as :func:`loop_spread` and the
+    spread count them: the 10th and 90th percentiles over time of the half-cycle frequencies,
+    widened to the LOOP_HALF_CYCLES-th slowest and fastest half cycle spanning LOOP_MIN_SPAN of the
+    span (a few loops at a second rate are a rate, decision 0040). One short reversal is no drive
+    rate: a slewed jump from a hold to where a triangle starts (randomized seed 9107: 0.087 A in 4
+    samples at 5 kHz) is a half cycle of 625 Hz, and a 3.6 Hz drive read as reaching 625 Hz asked of
+    its training content 3.1 kHz to be predicted (decision 0078). Empty when there are no reversals."""
+    if not f.size:
+        return []
+    lo, hi = _time_percentile(f, 10), _time_percentile(f, 90)
+    loops = np.sort(f[amplitude >= LOOP_MIN_SPAN * span])
+    k = LOOP_HALF_CYCLES
+    if loops.size >= k:
+        lo, hi = min(lo, float(loops[k - 1])), max(hi, float(loops[-k]))
+    return [float(lo), float(hi)]
+
+
 def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | None = None) -> dict[str, Any]:
     """What a set of input records can excite: spread of drive frequencies (90th / 10th percentile
     over time of the half-cycle frequencies, or :func:`loop_spread` counted in loops, the larger), the
@@ -237,7 +255,7 @@ def excitation_summary(inputs: Sequence[np.ndarray], fs: float, span: float | No
     spread = max(spread, loop_spread(f, amplitude, span))
     steps = step_rate_ratio(np.concatenate(excursions) if excursions else np.zeros(0), f, amplitude, span)
     return {"frequency_spread": spread, "rate_spread": rate_spread(f, amplitude, span), "step_rate_ratio": steps,
-            "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": [float(np.min(f)), float(np.max(f))] if f.size else [],
+            "loops": int(np.count_nonzero(amplitude >= LOOP_MIN_SPAN * span)), "frequencies_hz": drive_frequencies(f, amplitude, span),
             "median_frequency_hz": float(np.median(f)) if f.size else float("nan"),
             "longest_hold_s": plateau_s, "steps": jumps, "reversals": int(f.size), "excited_hz": excited}
 

@@ -104,3 +104,21 @@ def test_a_step_faster_than_the_loops_is_another_rate() -> None:
     assert with_step["step_rate_ratio"] > 10.0  # ... and a step: 0.8 in 5 ms against 8 per s at most
     small = np.concatenate([np.zeros(500), np.linspace(0.0, 0.1, 6)[1:], np.full(500, 0.1), sine + 0.1])
     assert excitation_summary([small], FS)["step_rate_ratio"] == 1.0  # under LOOP_MIN_SPAN of the span: a wiggle
+
+
+def test_one_short_reversal_is_no_drive_rate() -> None:
+    """Decision 0078: a hold, a jump slewed over 4 samples down to where a 3.6 Hz triangle starts
+    (11 % of the span, randomized seed 9107), then the triangle. The jump is a half cycle of 100 Hz
+    at 1 kHz; the drive frequencies stay at the triangle's. Three loops at 9 Hz still are a rate."""
+    hold = np.full(700, 0.6)
+    jump = np.linspace(0.6, 0.52, 5)[1:]
+    t = np.arange(int(4 / 3.6 * FS)) / FS
+    tri = 0.52 + 0.39 * (2.0 / np.pi) * np.arcsin(np.sin(2 * np.pi * 3.6 * t))
+    u = np.concatenate([np.zeros(600), hold, jump, tri])
+    m = motion(u, FS, float(np.ptp(u)))
+    assert half_cycle_frequencies(m["flips"], FS).max() >= 90  # the jump is read as a reversal
+    lo, hi = excitation_summary([u], FS)["frequencies_hz"]
+    assert 3.0 < lo <= hi < 8.0, (lo, hi)  # a quarter cycle at the start reads 7.2 Hz
+    sine = 5.0 * np.sin(2 * np.pi * 0.7 * np.arange(int(6 / 0.7 * FS)) / FS)
+    lo, hi = excitation_summary([np.concatenate([_triangle(9.0, 3, 5.0), sine])], FS)["frequencies_hz"]
+    assert abs(lo - 0.7) < 0.1 and abs(hi - 9.0) < 0.5, (lo, hi)

@@ -251,6 +251,27 @@ def test_a_slewed_step_in_training_rings_the_dynamics_of_a_one_rate_test_run(tmp
     assert new < 0.5 * old
 
 
+def test_a_slewed_jump_to_where_the_drive_starts_is_no_rate_to_predict(tmp_path: Path) -> None:
+    # randomized seed 9107: a 16-sample amplifier delay (3.2 ms at 5 kHz) under pi1, one run of a
+    # 3.6 Hz triangle after a power-on hold, split 60/40 in time. The jump from the hold to where the
+    # triangle starts (0.087 A over 4 samples) read as a 625 Hz half cycle, so the rates to predict
+    # reached 625 Hz and delay and dynamics were untestable ("content reaches 183 Hz, under 3.12 kHz");
+    # a damping took the delay's error. Counted as drive rates are (decision 0078), the training's
+    # corners ring the delay at 3.6 Hz, and the delay is ranked first
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+    import diagnosis_cases as DC
+
+    case = DC.draw_case(9107)
+    assert case.hidden == ["delay"] and case.forms["delay"] == "amplifier"
+    paths, kw = DC.write_case(case, tmp_path / "c9107")
+    d = diagnose(paths, case.spec, jobs=1, **kw)
+    assert not {"delay", "dynamics"} & {u["effect"] for u in d.untestable}, d.untestable
+    first = d.effects[0]
+    assert first.significant and first.effect == "delay", [(c.effect, c.significant) for c in d.effects]
+
+
 def _damped_runs(path: Path, train_steps: bool) -> Path:
     """A velocity damping on a play rig: training at one 5 Hz sine amplitude, with or without a
     staircase of slewed steps before it; the test run at 10 Hz."""
