@@ -199,6 +199,13 @@ def _change(name: str, gain: float) -> str:
     return f"{name} rmse {'fell' if gain > 0 else 'rose'} {_pct(gain)}"
 
 
+def _short_of_fall(gain: float) -> str:
+    """What a gain below MIN_GAIN misses: 'less than the 10 % required' reads wrong after a rise."""
+    if math.isfinite(gain) and gain > 0:
+        return f"less than the {100 * T.MIN_GAIN:g} % required"
+    return f"where a fall of {100 * T.MIN_GAIN:g} % is required"
+
+
 def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]:
     """Why check ``key`` failed, from a verdict's evidence: ``{"check", "measured", "required",
     "text"}``. ``measured`` is a number (or a dict of numbers), ``required`` the condition on it as
@@ -209,7 +216,7 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
     if key == "gain_over_10pct":
         where = "validation at the confirming rates" if "confirmation_rmse" in ev else "validation"
         return {"check": key, "measured": gain, "required": f"> {T.MIN_GAIN:g}",
-                "text": f"{_change(where, gain)}, less than the {100 * T.MIN_GAIN:g} % required"}
+                "text": f"{_change(where, gain)}, {_short_of_fall(gain)}"}
     if key in ("train_and_validation_agree", "calibration_and_confirmation_agree"):
         calibrated = key.startswith("calibration")
         first, second = ("calibration", "confirmation") if calibrated else ("training", "validation")
@@ -264,8 +271,7 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
         old_h, new_h = (ev.get("replication") or {}).get("held_back_rmse") or [math.nan, math.nan]
         g = relative_gain(old_h, new_h)
         return {"check": key, "measured": g, "required": f"> {T.MIN_GAIN:g}",
-                "text": f"on the held-back training rows the rmse falls {_pct(g)}, less than the "
-                        f"{100 * T.MIN_GAIN:g} % required"}
+                "text": f"{_change('on the held-back training rows the', g)}, {_short_of_fall(g)}"}
     if key == "error_above_noise":
         noise = float(ev.get("noise_floor", math.nan))
         ratio = old_v / noise if noise > 0 else math.inf

@@ -141,3 +141,14 @@ def test_candidate_built_elsewhere_gets_its_reasons():
     c.evidence["gain_over_best_single"] = 0.04
     assert c.to_json()["evidence"]["failed_checks"][1]["text"] == (
         "the pair's validation rmse is 4 % below the best single effect's, less than the 10 % required")
+
+
+def test_a_rise_is_not_called_less_than_the_fall_required():
+    """The measured dSPACE capture's dynamics (2026-12-04): 'validation at the confirming rates rmse rose
+    43 %, less than the 10 % required' read as if a rise fell short of a fall; a rise says what is
+    required instead, for the held-back rows too."""
+    r = check_reason("gain_over_10pct", _evidence_with(validation_rmse=[1.0, 1.43]))
+    assert r["text"] == "validation rmse rose 43 %, where a fall of 10 % is required"
+    ev = _evidence_with(replication={"held_back_rmse": [0.06, 0.066]})
+    r = check_reason("held_back_gain_over_10pct", ev)
+    assert r["text"] == "on the held-back training rows the rmse rose 10 %, where a fall of 10 % is required"
