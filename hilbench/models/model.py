@@ -154,6 +154,10 @@ class Model:
         u = np.concatenate([r.input for r in runs])
         self.sample_rate_hz = runs[0].sample_rate_hz
         self.norm.setdefault("u_scale", float(np.max(np.abs(u))) or 1.0)
+        # the operating range a compensator may rely on (hilbench.online.operating_range): the
+        # inputs the model has seen, command units; files without them fall back to +-u_scale
+        self.norm.setdefault("u_min", float(np.min(u)))
+        self.norm.setdefault("u_max", float(np.max(u)))
         signals = self._joined_signals(runs, u)
         for c in self.components:
             c.prepare(signals)

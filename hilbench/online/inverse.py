@@ -80,6 +80,7 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.online import inverse_kernels as K
+from hilbench.online.operating_range import operating_range
 from hilbench.online.pid import PID
 
 __all__ = ["Compensator", "PID", "InstabilityError", "inverse_pi_parameters"]
@@ -180,6 +181,7 @@ class Compensator:
         dynamics_feedforward: bool = True,
         reference_span: float | None = None,
         max_iterations: int = 60,
+        unit: str = "",
     ):
 
         if model.weights is None:
@@ -203,7 +205,11 @@ class Compensator:
         self.I, self.P = I, compiled.P
         self.X = np.zeros(int(I[ST.I_NX]))
         self.channels = list(compiled.channels)
+        self.unit = unit
         us = float(model.norm["u_scale"])
+        # what the model knows and reaches: the static map over the fitted inputs (see operating_range)
+        aux_ref = np.array([float(model.effect(c).constants["reference"]) for c in self.channels] or [0.0])
+        self.range = operating_range(model, I, compiled.P, aux_ref, (lo, hi))
 
         extra = [e.name for e in model.effects if e.name not in _OUTSIDE_STATIC and e.name != "asymmetry"]
         structure = None if extra else _pi_structure(model)
@@ -237,6 +243,14 @@ class Compensator:
             raise UserError(f"compensator method 'pi' cannot invert the polynomial of {model.spec!r}",
                             hint="use method='mpi' or 'im'")
         self.kind = kind
+        # the general inverse solves the static map per sample: it needs that map rising, and it
+        # brackets its solve by the operating range (outside it the model is extrapolated, and a
+        # map that turns over there gives a second, falling root or a rail)
+        if kind == "general" and not self.range.rising:
+            raise InstabilityError(self.range.not_rising(model.spec, unit),
+                                   hint="fit the model on the range you will track in, where the actuator rises")
+        self.bracket = self.range.command if kind == "general" else (lo, hi)
+        self._range_notes(kind)
         ke = 0.0
         if kind in ("mpi", "im"):
             ke = self._check_eq16(structure["p0"], poly, us, gain, kind)
@@ -245,7 +259,7 @@ class Compensator:
         # -- CP ---------------------------------------------------------------------------------------
         cp: list[float] = [0.0] * K.N_CP
         cp[K.C_US] = us
-        cp[K.C_ULO], cp[K.C_UHI] = lo, hi
+        cp[K.C_ULO], cp[K.C_UHI] = self.bracket
         ci = np.zeros(K.N_CI, dtype=np.int64)
         ci[K.CI_KIND] = K.KINDS[kind]
         ci[K.CI_NX] = self.X.size
@@ -477,23 +491,31 @@ class Compensator:
                 f"{what} and one sample of measurement delay: closed-loop pole at |z| = {radius:.4g} >= 1",
                 hint="lower the gains (ki/fs < 1 and kp < 1 keep a unit-gain plant stable)")
 
+    def _range_notes(self, kind: str) -> None:
+        r, u = self.range, self.unit
+        self.notes.append(
+            f"fitted input range [{r.fitted[0]:.4g}, {r.fitted[1]:.4g}] {u} ({r.source}); operating range "
+            f"[{r.command[0]:.4g}, {r.command[1]:.4g}] {u}; reachable output [{r.output[0]:.4g}, {r.output[1]:.4g}] um: "
+            "the static map's major loop over the operating range (dynamics and delay off, aux channels at their "
+            "references)".replace("  ", " "))
+        self.notes.extend(r.notes)
+        if kind == "general":
+            self.notes.append(f"the general inverse solves within [{self.bracket[0]:.4g}, {self.bracket[1]:.4g}] {u}"
+                              .replace("  ", " "))
+        elif not r.rising:
+            self.notes.append(f"the static map does not rise over the fitted range (largest fall {r.fall_um:.4g} um on "
+                              f"its {r.fall_branch} branch); the {kind} inverse relies on its own checks")
+        self.notes.append("dynamics: inverted by a feed-forward pre-filter when minimum phase, else left to feedback; "
+                          "delay: left to feedback" if self.model.effect("dynamics") is not None or
+                          self.model.effect("delay") is not None else "no dynamics or delay in the model")
+
     def _slope0(self) -> float:
         lo, hi = self.limits
         us = self.CP[K.C_US]
         if self.kind == "general":
-            X0 = np.zeros_like(self.X)
-            X1 = np.zeros_like(self.X)
-            aux = np.zeros(max(len(self.channels), 1))
-            aux[:] = [float(self.model.effect(c).constants["reference"]) for c in self.channels] or [0.0]
-            y0 = K.model_step_call(self.I, self.P, X0, lo, aux)
-            y1 = K.model_step_call(self.I, self.P, X1, hi, aux)
-            s = (y1 - y0) / (hi - lo)
-            if not s > 0:
-                raise InstabilityError(
-                    f"the static map of {self.model.spec!r} does not rise over the command range [{lo:g}, {hi:g}] "
-                    f"({y0:.4g} -> {y1:.4g} um): the compensator assumes a rising actuator")
-            self._y_span = abs(y1 - y0)
-            return s
+            # the ascending branch's mean slope over the bracket (positive: the range rises)
+            self._y_span = abs(self.range.output[1] - self.range.output[0])
+            return float(self.range.slope)
         if self.kind == "fpmpi":
             v = np.linspace(lo / us, hi / us, 4001)
             x = np.array([K.shaped_input(self.I, self.P, float(t)) for t in v])
@@ -514,7 +536,7 @@ class Compensator:
         """Fresh model memory, feedback and identifier; the command at the range's low end."""
         self.X[:] = 0.0
         self.CX = np.zeros(self._nx_total)
-        self.CX[K.S_U] = self.CX[K.S_UAPP] = min(max(0.0, self.limits[0]), self.limits[1])
+        self.CX[K.S_U] = self.CX[K.S_UAPP] = min(max(0.0, self.bracket[0]), self.bracket[1])
         self.CX[K.S_VPREV] = self.CX[K.S_U] / self.CP[K.C_US]
         self.CX[K.S_SLOPE] = self.CP[K.C_SLOPE0]
         self.CX[K.S_GAIN] = 1.0
@@ -608,6 +630,7 @@ class Compensator:
     def describe(self) -> dict[str, Any]:
         """What the recording keeps: kind, checks, notes, feedback, identifier."""
         doc: dict[str, Any] = {"model": self.model.spec, "method": self.kind, "limits": list(self.limits),
+                               "operating_range": self.range.describe(self.unit),
                                "checks": self.checks, "notes": self.notes}
         if self.kind == "im":
             doc["iterations_per_sample"] = int(self.CI[K.CI_IMIT])
