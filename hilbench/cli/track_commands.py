@@ -33,14 +33,22 @@ def track(
     plot_png: Optional[Path] = typer.Option(None, "--plot", metavar="PNG",
                                             help="Figure: tracking, error, desired vs actual."),
     label: str = typer.Option("track", "--label", help="Run label in the recording."),
+    allow_clip: bool = typer.Option(False, "--allow-clip", help="Run a reference that leaves the reachable output "
+                                    "range clipped to it (recorded in the run), instead of refusing it."),
+    strict: bool = typer.Option(False, "--strict", help="Exit with status 3 when the run is degraded (health: "
+                                "samples at a limit or slew-limited > 1 %, or the error well above the model's own)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """Track a reference with the inverse of a fitted model, optionally with feedback or online
     adaptation; record it and report the tracking error (um; *_pct in percent of the reference).
 
     A configuration that cannot be stable (004 eq. 16 violated with no gain, PID gains that
-    destabilise the loop) is refused before anything moves.
+    destabilise the loop), a model that cannot be inverted over its operating range and a reference
+    outside the reachable output range (unless --allow-clip) are refused before anything moves
+    (exit 2). The run's health (samples at a limit, slew-limited, error against the model's own) is
+    reported; --strict makes a degraded run exit with status 3.
     """
+    from hilbench.online.health import DEGRADED_EXIT, health_line
     from hilbench.online.pid import PID
     from hilbench.online.tracking import plot_tracking, track as run_track
     from hilbench.rig.config import load_rig
@@ -50,7 +58,8 @@ def track(
     out = output or default_output(f"{config.name}-track")
     with Rig(config) as opened:
         result = run_track(opened, model, reference, feedback=PID(kp, ki, kd) if feedback else None,
-                           online=True if online else None, output=out, label=label, method=method)
+                           online=True if online else None, output=out, label=label, method=method,
+                           allow_clip=allow_clip)
         try:
             opened.stop(True)
         except Exception:  # noqa: BLE001  (the run is recorded; a failing stop is reported, not fatal)
@@ -62,12 +71,26 @@ def track(
         document["png"] = str(plot_png)
     if as_json:
         print_json(document)
+        _exit_if_degraded(strict, result.health, DEGRADED_EXIT)
         return
     m = result.metrics
     typer.echo(f"{result.file} run {result.group}: {result.compensator['method']} inverse of {result.compensator['model']}"
                + (" + PID" if feedback else "") + (" + online" if online else ""))
     typer.echo("  " + ", ".join(f"{k} {v:.4g}" for k, v in m.items()))
+    typer.echo("  " + health_line(result.health))
+    if result.reference_clipped:
+        c = result.reference_clipped
+        typer.echo(f"  reference clipped: {c['samples']} samples ({c['share_pct']:.3g} %) to the reachable "
+                   f"[{c['reachable_um'][0]:.4g}, {c['reachable_um'][1]:.4g}] um")
     for note in result.compensator.get("notes", []):
         typer.echo(f"  note: {note}")
     if plot_png is not None:
         typer.echo(f"  figure: {plot_png}")
+    _exit_if_degraded(strict, result.health, DEGRADED_EXIT)
+
+
+def _exit_if_degraded(strict: bool, health: dict, code: int) -> None:
+    """--strict: a degraded run (recorded, reported) ends with its own exit status."""
+    if strict and health.get("degraded"):
+        typer.echo("error: the run is degraded: " + "; ".join(health.get("reasons", [])), err=True)
+        raise typer.Exit(code)

@@ -23,6 +23,16 @@ and the compensator's memory to the same state (a full-range cycle, then a ramp 
 command), runs the loop, writes a recording (the rig's channels plus ``reference`` um, ``error``
 um = reference - output, ``command`` before the safety path, ``lateness`` s) and returns the metric
 keys of :mod:`hilbench.identify.metrics` (read at call time) of the output against the reference.
+
+Before anything moves, :func:`track` refuses (:class:`UserError`) a reference that leaves the
+reachable output range of the compensator (:mod:`hilbench.online.operating_range`: the static map's
+major loop over the model's operating range), naming the range and the first sample outside it;
+``allow_clip=True`` (CLI ``--allow-clip``) runs it clipped to that range instead, and the run's
+``reference_clipped`` attribute (JSON: ``reference_clipped``) says how many samples were clipped and
+the reference's original range; the ``reference`` channel holds what the loop was asked to track.
+Every run reports its health (:mod:`hilbench.online.health`: samples at a limit, slew-limited
+samples, error against the model's own): ``TrackResult.health``, the JSON's ``health`` object and
+the run's ``health`` attribute.
 """
 
 from __future__ import annotations
@@ -38,6 +48,7 @@ import numpy as np
 from numba import njit
 
 from hilbench.errors import UserError
+from hilbench.online.health import run_health
 from hilbench.online.inverse import PID, Compensator
 from hilbench.online.inverse_kernels import comp_step, comp_update
 from hilbench.rig.safety import ramp
@@ -214,6 +225,8 @@ class TrackResult:
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
     approach_from: float = 0.0  # the applied command just before the first sample
+    health: dict[str, Any] = field(default_factory=dict)
+    reference_clipped: dict[str, Any] | None = None
 
     @property
     def error(self) -> np.ndarray:
@@ -222,7 +235,8 @@ class TrackResult:
     def to_json(self) -> dict[str, Any]:
         return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
                 "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,
-                "loop_seconds": self.seconds}
+                "loop_seconds": self.seconds, "health": self.health,
+                **({"reference_clipped": self.reference_clipped} if self.reference_clipped else {})}
 
 
 def tracking_metrics(reference: np.ndarray, output: np.ndarray) -> dict[str, float]:
@@ -268,6 +282,7 @@ def track(
     iterations: int = 1,
     precondition: bool = True,
     chunk_samples: int = 65536,
+    allow_clip: bool = False,
 ) -> TrackResult:
     """Track ``reference`` (um) on ``rig`` with the inverse of ``model`` (a fitted
     :class:`~hilbench.models.Model` or its JSON file); see the module docstring.
@@ -276,7 +291,8 @@ def track(
     adaptive compensator (fpmpi models). ``precondition``: before the run, a full-range cycle
     (up to the top of the range the model was fitted on, then to the first command) wipes the
     actuator's memory so that the model's memory can match it. Writes a
-    run to ``output`` (appended when it exists) when given.
+    run to ``output`` (appended when it exists) when given. ``allow_clip``: run a reference that
+    leaves the reachable output range clipped to it (else it is refused before the rig moves).
     """
     from hilbench.models import Model
 
@@ -290,12 +306,12 @@ def track(
     act = rig.actuator
     span = float(np.ptp(ref[np.isfinite(ref)])) if np.any(np.isfinite(ref)) else 1.0
     comp = Compensator(model, fs, (act.min, act.max), method=method, gain=gain, iterations=iterations,
-                       feedback=feedback, online=online, reference_span=max(span, 1e-9))
+                       feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit)
+    ref, clipped = _reachable(ref, comp, fs, allow_clip)
     if precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
-        top = min(act.max, float(model.norm.get("u_scale", act.max)))
-        _drive(rig, comp, max(top, act.min))
+        _drive(rig, comp, comp.range.fitted[1])
     aux0 = _first_aux(rig, comp) if comp.channels else None
     first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
     _drive(rig, comp, first)
@@ -328,9 +344,38 @@ def track(
                          limited=limited, aux=aux, seconds=seconds, approach_from=approach_from)
     result.compensator["counters"] = comp.counters()
     result.compensator["reference"] = described
+    result.health = run_health(cmd, applied, comp.bracket, (act.min, act.max),
+                               result.metrics.get("erms_pct", math.nan), model)
+    result.reference_clipped = clipped
     if output is not None:
         result.file, result.group = _write(rig, result, output, label, lateness)
     return result
+
+
+def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool) -> tuple[np.ndarray, dict[str, Any] | None]:
+    """The reference checked against the compensator's reachable output range: refused when it
+    leaves it, or (``allow_clip``) clipped to it, with what was clipped."""
+    lo, hi = comp.range.output
+    finite = np.isfinite(ref)
+    outside = finite & ((ref < lo) | (ref > hi))
+    if not np.any(outside):
+        return ref, None
+    k = int(np.argmax(outside))
+    count = int(np.count_nonzero(outside))
+    span = comp.range.command
+    where = (f"the reachable output range of {comp.model.spec!r} on this rig is [{lo:.4g}, {hi:.4g}] um "
+             f"(its static map over [{span[0]:.4g}, {span[1]:.4g}] {comp.unit})").replace(" )", ")")
+    if not allow_clip:
+        raise UserError(f"the reference leaves what the actuator can reach: {where}; sample {k} (t = {k / fs:.6g} s) "
+                        f"asks for {ref[k]:.4g} um ({count} of {ref.size} samples outside)",
+                        hint="scale the reference into the range, or --allow-clip to run it clipped")
+    clipped = np.where(finite, np.clip(ref, lo, hi), ref)
+    info = {"samples": count, "share_pct": 100.0 * count / ref.size, "first_index": k, "first_time_s": k / fs,
+            "reachable_um": [lo, hi],
+            "original_range_um": [float(np.min(ref[finite])), float(np.max(ref[finite]))]}
+    comp.notes.append(f"reference clipped to the reachable [{lo:.4g}, {hi:.4g}] um: {count} of {ref.size} samples "
+                      f"(--allow-clip)")
+    return clipped, info
 
 
 def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
@@ -389,7 +434,11 @@ def _write(rig: Any, result: TrackResult, output: str | Path, label: str, latene
     except BaseException as exc:
         run.finish("failed", repr(exc))
         raise
-    run.finish("complete", extra_attrs={"metrics": json.dumps(result.metrics)})
+    extra = {"metrics": json.dumps(result.metrics), "health": json.dumps(result.health, default=str),
+             "degraded": bool(result.health.get("degraded", False))}
+    if result.reference_clipped is not None:
+        extra["reference_clipped"] = json.dumps(result.reference_clipped)
+    run.finish("complete", extra_attrs=extra)
     return str(output), run.group_name
 
 

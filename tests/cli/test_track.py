@@ -78,3 +78,91 @@ def test_track_refuses_with_one_line(fitted: tuple[Path, Path], tmp_path: Path, 
     assert result.exit_code == 2
     assert message in result.output
     assert "Traceback" not in result.output
+
+
+# -- reachability and health (issue 58) ---------------------------------------------------------------
+
+def _recorded_output_range(fitted: tuple[Path, Path]) -> tuple[float, float]:
+    sweep = Recording(fitted[1].parent / "sweep.h5")
+    values = [run.channel("output") for run in sweep]
+    return float(min(v.min() for v in values)), float(max(v.max() for v in values))
+
+
+def _sine_over(lo: float, hi: float, cycles: int = 2) -> str:
+    """A 1 Hz sine from lo to hi (um), starting at lo."""
+    return (f"sine:amplitude={(hi - lo) / 2:.6g},offset={(hi + lo) / 2:.6g},frequency_hz=1,phase_deg=-90,"
+            f"cycles={cycles}")
+
+
+def test_track_refuses_an_unreachable_reference_before_the_rig_moves(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    """On main a reference twice the recorded output range ran with the command pinned at a limit,
+    exit 0, status complete; now it is refused in one line naming the range and the first sample."""
+    rig, model = fitted
+    y_lo, y_hi = _recorded_output_range(fitted)
+    mid, span = (y_lo + y_hi) / 2, y_hi - y_lo
+    out = tmp_path / "x.h5"
+    result = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "-o", str(out),
+                                      "--reference", _sine_over(mid - span, mid + span)])
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.output
+    line = lines[0]
+    assert "reachable output range" in line and " um" in line
+    assert "sample " in line and "t = " in line and "asks for" in line and "--allow-clip" in line
+    assert not out.exists()  # refused before a run was written (and before the rig moved)
+    # the same with --json: one JSON document with the error
+    again = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "-o", str(out), "--json",
+                                     "--reference", _sine_over(mid - span, mid + span)])
+    assert again.exit_code == 2 and json.loads(again.stdout)["exit"] == 2
+
+
+def test_track_allow_clip_is_recorded_and_strict_fails_a_degraded_run(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    rig, model = fitted
+    y_lo, y_hi = _recorded_output_range(fitted)
+    mid, span = (y_lo + y_hi) / 2, y_hi - y_lo
+    out = tmp_path / "clip.h5"
+    args = ["track", str(rig), "--model", str(model), "-o", str(out), "--allow-clip",
+            "--reference", _sine_over(mid - span, mid + span)]
+    result = CliRunner().invoke(app, [*args, "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    clipped = doc["reference_clipped"]
+    lo, hi = clipped["reachable_um"]
+    assert clipped["samples"] > 0 and clipped["original_range_um"][1] > hi
+    run = Recording(out).run(doc["run"])
+    assert json.loads(run.attrs["reference_clipped"]) == clipped
+    reference = run.channel("reference")
+    assert reference.max() <= hi + 1e-9 and reference.min() >= lo - 1e-9
+    # the clipped peaks need the rail: the run is degraded and says why
+    health = doc["health"]
+    assert health["degraded"] and any("limit" in r for r in health["reasons"])
+    assert json.loads(run.attrs["health"]) == health
+    strict = CliRunner().invoke(app, [*args, "--strict"])
+    assert strict.exit_code == 3, strict.output
+    assert "DEGRADED" in strict.output and "reference clipped" in strict.output
+
+
+def test_track_reports_health_and_strict_passes_a_healthy_run(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    rig, model = fitted
+    y_lo, y_hi = _recorded_output_range(fitted)
+    mid, span = (y_lo + y_hi) / 2, y_hi - y_lo
+    out = tmp_path / "ok.h5"
+    reference = _sine_over(mid - 0.4 * span, mid + 0.4 * span)  # 80 % of the recorded range
+    result = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "-o", str(out), "--json", "--strict",
+                                      "--reference", reference])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    health = doc["health"]
+    fit = json.loads(model.read_text())["metrics"]["validation"]["erms_pct"]
+    assert health["model_erms_pct"] == pytest.approx(fit) and health["model_erms_split"] == "validation"
+    assert health["erms_pct"] == pytest.approx(doc["metrics"]["erms_pct"])
+    assert health["at_limit_pct"] <= 1.0 and health["slew_limited_pct"] <= 1.0
+    assert not health["degraded"] and health["reasons"] == []
+    assert "reference_clipped" not in doc
+    run = Recording(out).run(doc["run"])
+    assert json.loads(run.attrs["health"]) == health
+    assert "reference_clipped" not in run.attrs
+    text = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "-o", str(out), "--reference", reference])
+    assert text.exit_code == 0
+    assert "health:" in text.output and "slew-limited" in text.output and "- ok" in text.output
+    assert "operating range" in text.output and "reachable output" in text.output
