@@ -148,3 +148,24 @@ def test_random_operating_ranges_on_the_piezo(seed: int, tmp_path: Path) -> None
     assert health["erms_pct"] < max(6 * health["model_erms_pct"], health["model_erms_pct"] + 1.0)
     with pytest.raises(UserError, match="reachable output range"):
         track(rig, model, _sine(inner[0], r.output[1] + 1.0), method="general")
+
+
+def test_general_inverse_works_on_the_operating_range_where_the_rig_range_falls(tmp_path: Path) -> None:
+    """Failure 1 on a rig whose plant does rise: pmpi fitted on -0.76..4.05 V, rig limits -2.37..12.84 V.
+    The fitted cubic turns over beyond ~4 V; main checked 'rising' between the rig's limits (-15.6 ->
+    -279.8 um) and refused. On the operating range it is accepted, bracketed there, and tracks 80 % of
+    the recorded range within the health thresholds."""
+    rig = tmp_path / "rig.toml"
+    rig.write_text(textwrap.dedent(PIEZO.format(lo=-2.37, hi=12.84)), encoding="utf-8")
+    recording = _sweep(rig, _sine(-0.76, 4.05, cycles=3), tmp_path / "sweep.h5")
+    model = fit(recording, "pmpi").model
+    y_lo, y_hi = _output_range(recording)
+    inner = (y_lo + 0.1 * (y_hi - y_lo), y_hi - 0.1 * (y_hi - y_lo))
+    result = track(rig, model, _sine(*inner), method="general")
+    doc = result.compensator["operating_range"]
+    assert doc["fitted_input"] == [pytest.approx(-0.76, abs=1e-3), pytest.approx(4.05, abs=1e-3)]
+    lo, hi = doc["command"]
+    assert -2.37 <= lo <= -0.76 and hi == pytest.approx(4.05, abs=1e-3)  # not widened into the turn-over
+    assert np.all((result.command >= lo) & (result.command <= hi))
+    assert not result.health["degraded"], result.health["reasons"]
+    assert any("general inverse solves within" in n for n in result.compensator["notes"])
