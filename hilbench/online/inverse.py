@@ -249,7 +249,10 @@ class Compensator:
         if kind == "general" and not self.range.rising:
             raise InstabilityError(self.range.not_rising(model.spec, unit),
                                    hint="fit the model on the range you will track in, where the actuator rises")
-        self.bracket = self.range.command if kind == "general" else (lo, hi)
+        # the polynomial kinds too: 004 eq. 16/20 and the I-M clamp hold where the model is known (a
+        # cubic fitted on 0..4 V turns over by 13 V, which made eq. 20 fail over the rig's range)
+        on_range = kind == "general" or (kind in ("mpi", "im") and self.range.rising)
+        self.bracket = self.range.command if on_range else (lo, hi)
         self._range_notes(kind)
         ke = 0.0
         if kind in ("mpi", "im"):
@@ -442,8 +445,9 @@ class Compensator:
 
     # -- checks -------------------------------------------------------------------------------------
     def _check_eq16(self, p0: float, poly: np.ndarray, us: float, gain: float | str | None, kind: str) -> float:
-        """004 eq. 16 over the command range; eq. 20's k_e when it fails. Returns k_e."""
-        lo, hi = self.limits
+        """004 eq. 16 over the command range (the operating range when the map rises there, else the
+        rig's limits); eq. 20's k_e when it fails. Returns k_e."""
+        lo, hi = self.bracket
         v = np.linspace(lo / us, hi / us, 2001)
         dp = np.polyval(np.polyder(poly[::-1]), v) if poly.size > 1 else np.zeros_like(v)
         worst = float(np.max(np.abs(dp)))

@@ -119,7 +119,8 @@ def test_random_operating_ranges_on_the_piezo(seed: int, tmp_path: Path) -> None
     """Random rig limits and a random sweep inside them: the fitted range is what was driven, the
     operating range contains it and stays within the limits, the reachable range is the static
     loop's over it and holds 80 % of what was recorded; the general inverse tracks that with its
-    commands inside the operating range, never at a limit; a reference 1 um beyond is refused."""
+    commands inside the operating range, never at a limit; a reference 1 um beyond is refused; the I-M
+    inverse checks 004 eq. 16/20 on the operating range and tracks as well."""
     rng = np.random.default_rng(seed)
     lo, hi = float(rng.uniform(-3.0, -0.5)), float(rng.uniform(10.0, 13.0))
     a = float(rng.uniform(lo + 0.5, 4.0))
@@ -148,6 +149,12 @@ def test_random_operating_ranges_on_the_piezo(seed: int, tmp_path: Path) -> None
     assert health["erms_pct"] < max(6 * health["model_erms_pct"], health["model_erms_pct"] + 1.0)
     with pytest.raises(UserError, match="reachable output range"):
         track(rig, model, _sine(inner[0], r.output[1] + 1.0), method="general")
+    # 004's I-M inverse checks eq. 16/20 over the same range (seed 12: main refused it by eq. 20 over
+    # the rig's limits, where the fitted cubic turns over), and tracks as well as the general one
+    im = track(rig, model, _sine(*inner))
+    assert im.compensator["method"] == "im" and im.compensator["checks"]["eq16"]["range"] == list(r.command)
+    assert im.health["at_limit_samples"] == 0
+    assert im.metrics["erms_pct"] < 1.5 * result.metrics["erms_pct"] + 0.1
 
 
 def test_general_inverse_works_on_the_operating_range_where_the_rig_range_falls(tmp_path: Path) -> None:
