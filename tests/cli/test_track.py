@@ -166,3 +166,23 @@ def test_track_reports_health_and_strict_passes_a_healthy_run(fitted: tuple[Path
     assert text.exit_code == 0
     assert "health:" in text.output and "slew-limited" in text.output and "- ok" in text.output
     assert "operating range" in text.output and "reachable output" in text.output
+
+
+def test_track_refuses_a_model_that_cannot_be_inverted_on_its_operating_range(tmp_path: Path) -> None:
+    """gmm-issf-duhem as simulated loops as a figure eight over +-6 A: duhem-d is refused in one line
+    naming the range it was fitted on (main named the rig's +-6.5 A) and where its map falls."""
+    runner = CliRunner()
+    sweep = runner.invoke(app, ["sweep", "gmm-issf-duhem", "-e", "sine:amplitude=6,frequency_hz=1,cycles=2",
+                                "-o", str(tmp_path / "gmm.h5"), "--json", "--quiet"])
+    assert sweep.exit_code == 0, sweep.output
+    fit = runner.invoke(app, ["fit", str(tmp_path / "gmm.h5"), "--model", "duhem-d", "-o", str(tmp_path / "d.json"),
+                              "--json", "--quiet"])
+    assert fit.exit_code == 0, fit.output
+    out = tmp_path / "t.h5"
+    result = runner.invoke(app, ["track", "gmm-issf-duhem", "--model", str(tmp_path / "d.json"), "-o", str(out),
+                                 "--reference", "sine:amplitude=53,offset=-60,frequency_hz=1,cycles=2"])
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in result.output
+    assert "operating range [-6, 6] A" in lines[0] and "falls by" in lines[0] and "6.5" not in lines[0]
+    assert not out.exists()
