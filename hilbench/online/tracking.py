@@ -26,7 +26,8 @@ keys of :mod:`hilbench.identify.metrics` (read at call time) of the output again
 
 Before anything moves, :func:`track` refuses (:class:`UserError`) a reference that leaves the
 reachable output range of the compensator (:mod:`hilbench.online.operating_range`: the static map's
-major loop over the model's operating range), naming the range and the first sample outside it;
+major loop over the model's operating range, within the output sensor's measurable ``range`` when
+the rig gives one), naming the range and the first sample outside it;
 ``allow_clip=True`` (CLI ``--allow-clip``) runs it clipped to that range instead, and the run's
 ``reference_clipped`` attribute (JSON: ``reference_clipped``) says how many samples were clipped and
 the reference's original range; the ``reference`` channel holds what the loop was asked to track.
@@ -307,7 +308,8 @@ def track(
     span = float(np.ptp(ref[np.isfinite(ref)])) if np.any(np.isfinite(ref)) else 1.0
     comp = Compensator(model, fs, (act.min, act.max), method=method, gain=gain, iterations=iterations,
                        feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit)
-    ref, clipped = _reachable(ref, comp, fs, allow_clip)
+    sensor = rig.config.sensor("output") if hasattr(rig, "config") else None
+    ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
     if precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
@@ -352,10 +354,22 @@ def track(
     return result
 
 
-def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool) -> tuple[np.ndarray, dict[str, Any] | None]:
-    """The reference checked against the compensator's reachable output range: refused when it
+def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
+               measurable: list[float] | None = None) -> tuple[np.ndarray, dict[str, Any] | None]:
+    """The reference checked against the compensator's reachable output range (within the output
+    sensor's measurable ``range``, um, when the rig gives one: beyond it no output is measured, and
+    the model's extrapolation towards the rig's limits is not believed past it): refused when it
     leaves it, or (``allow_clip``) clipped to it, with what was clipped."""
     lo, hi = comp.range.output
+    within = ""
+    if measurable is not None and (measurable[0] > lo or measurable[1] < hi):
+        lo, hi = max(lo, float(measurable[0])), min(hi, float(measurable[1]))
+        within = f", within the output sensor's range [{measurable[0]:.4g}, {measurable[1]:.4g}] um"
+        comp.notes.append(f"reachable output within the output sensor's range: [{lo:.4g}, {hi:.4g}] um")
+        if not hi > lo:
+            raise UserError(f"the output sensor's range [{measurable[0]:.4g}, {measurable[1]:.4g}] um and what "
+                            f"{comp.model.spec!r} reaches, [{comp.range.output[0]:.4g}, {comp.range.output[1]:.4g}] um, "
+                            "do not overlap")
     finite = np.isfinite(ref)
     outside = finite & ((ref < lo) | (ref > hi))
     if not np.any(outside):
@@ -364,7 +378,7 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool) 
     count = int(np.count_nonzero(outside))
     span = comp.range.command
     where = (f"the reachable output range of {comp.model.spec!r} on this rig is [{lo:.4g}, {hi:.4g}] um "
-             f"(its static map over [{span[0]:.4g}, {span[1]:.4g}] {comp.unit})").replace(" )", ")")
+             f"(its static map over [{span[0]:.4g}, {span[1]:.4g}] {comp.unit}{within})").replace(" ,", ",").replace(" )", ")")
     if not allow_clip:
         raise UserError(f"the reference leaves what the actuator can reach: {where}; sample {k} (t = {k / fs:.6g} s) "
                         f"asks for {ref[k]:.4g} um ({count} of {ref.size} samples outside)",
