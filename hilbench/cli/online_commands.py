@@ -223,6 +223,8 @@ def offline_verdict(y: np.ndarray, hammerstein: np.ndarray, static: np.ndarray |
         reasons.append(f"its free run diverges: {'not finite' if not math.isfinite(esc) else f'{esc:.3g} spans'} "
                        f"beyond the measured output range {float(yr.min()):.4g}..{float(yr.max()):.4g} {output_unit}"
                        f" (|y| up to {peak:.3g} {output_unit}; bound {DIVERGED_SPANS:g} spans)")
+    if extrapolation:
+        check["warnings"] = [extrapolation]
     if not (unstable or diverged):
         check.update(status="ok", scored="hammerstein free run", reasons=[])
         return check, hammerstein
@@ -329,6 +331,33 @@ def persistence_verdict(y: np.ndarray, online: np.ndarray, per: np.ndarray, rows
     return doc
 
 
+def leading_rests(runs: list[Any]) -> tuple[list[np.ndarray], list[str]]:
+    """Rows each run keeps for training and scoring: all but the leading rest of a run whose history
+    is unknown (an imported capture; :func:`hilbench.identify.trimming.leading_rest`), and a note
+    per run left short.
+
+    ``fit`` and ``diagnose`` leave such a rest out only where the output moves on its own in it
+    (a power-on transient). Here it goes whether settled or not: a held input identifies no
+    hysteresis, and the default split trains on the first part of each run, which on a capture that
+    rests first is the rest alone (the piezo stack rests 3.26 s of 10 s: its training rows held 0 V
+    and the FPMPI fitted on them reached 3.6e9 um at 150 V; decision 0083). The identifier still
+    runs through the rest: it is only neither trained on nor scored."""
+    from hilbench.identify.trimming import leading_rest
+
+    keeps, notes = [], []
+    for r in runs:
+        d = r.data
+        keep = np.ones(len(d), bool)
+        history_known = bool(getattr(d, "chain", False)) or getattr(d, "approach_from", None) is not None
+        k = 0 if history_known or not len(d) else leading_rest(np.asarray(d.input, float), float(d.sample_rate_hz))
+        if k:
+            keep[:k] = False
+            notes.append(f"run {r.key}: 0-{k / d.sample_rate_hz:.4g} s neither trained on nor scored: the input rests at "
+                         f"{float(d.input[0]):.4g} before the excitation starts (a held input identifies no hysteresis)")
+        keeps.append(keep)
+    return keeps, notes
+
+
 def compare(
     runs: list[Any], offline_model: Any, front_end: Any, *, M: int = 3, N: int = 5, lam: float = 1.0,
     delta: float = 1.0e5, forgetting: str = "directional", settle_s: float = 0.5,
@@ -344,7 +373,8 @@ def compare(
     active = [r for r in runs if len(r.data)]
     datas = [r.data for r in active]
     offline_all = offline_model.simulate_runs(datas)
-    static_all = [front_end.simulate(np.asarray(d.input, dtype=np.float64)) for d in datas]
+    static_fe = front_end.unbounded()  # the offline model's static part as fitted, extrapolation and all
+    static_all = [static_fe.simulate(np.asarray(d.input, dtype=np.float64)) for d in datas]
     train_u = np.concatenate([np.asarray(r.data.input, float)[r.train] for r in active]) if active else np.zeros(0)
     out = []
     for r, y_off, y_static in zip(active, offline_all, static_all):
@@ -483,14 +513,16 @@ def report_lines(doc: dict[str, Any]) -> list[str]:
                      f"{cell(a['re_ninf_pct'])} {cell(b['re_ninf_pct'], st)} {cell(c['re_ninf_pct'])}")
         check = r.get("offline_check", {})
         if st == "static-fallback":
-            notes.append(f"{r['run']}: offline* is the static FPMPI's free run: the Hammerstein model "
+            notes.append(f"{r['run']}: offline* is the static FPMPI's free run, the Hammerstein model set aside: "
                          + "; ".join(check.get("reasons", [])))
         elif st == "refused":
             notes.append(f"{r['run']}: offline refused, nothing scored: " + "; ".join(check.get("reasons", [])))
+        else:
+            notes.extend(f"{r['run']}: offline: {w}" for w in check.get("warnings", []))
         vs = r.get("online_vs_persistence", {})
         if vs.get("verdict") == "worse":
-            notes.append(f"{r['run']}: online is {vs['ratio_online_over_persistence']:.3g} x y(k-1): "
-                         + "; ".join(vs.get("reasons", [])))
+            notes.append(f"{r['run']}: online {r['online']['re_n2_pct']:.4g} % is worse than y(k-1) "
+                         f"{r['persistence']['re_n2_pct']:.4g} %: " + "; ".join(vs.get("reasons", [])))
     lines.append("online and y(k-1) are one-step-ahead predictions from measured outputs; offline is a free-run "
                  "simulation from the input alone: read online against y(k-1), not only against offline.")
     lines.extend(notes)
@@ -588,7 +620,10 @@ def online(
         paths = [Path(p) for p in data]
     dataset = as_dataset(paths)
     runs = dataset.fit_runs()
-    split = assign_roles(runs, train or None, None, train_fraction)
+    keeps, left_out = leading_rests(runs)
+    split = assign_roles(runs, train or None, None, train_fraction, keep=keeps)
+    for line in left_out:
+        note(line)
     if not any(r.validation.any() for r in runs):
         raise UserError(f"no run is left to identify online ({split})", where="--train")
     active = [r for r in runs if len(r.data)]
@@ -610,8 +645,14 @@ def online(
             progress=None if quiet else note)
         source = ("fitted on the training rows, then held; FPMPI " +
                   (f"from {model}" if loaded is not None else "fitted first (spec fpmpi), as 000 sec. 4.1"))
+    # A front end fitted here on the training rows holds its input within their range: beyond it its
+    # polynomial is an extrapolation the identifier would have to unlearn (decision 0083). A loaded
+    # one was fitted on data this command has not seen: its range is unknown, none is imposed.
+    train_u = np.concatenate([np.asarray(r.data.input, float)[m] for r, m in zip(active, masks)])
+    train_u = train_u[np.isfinite(train_u)]
+    fitted_range = (float(train_u.min()), float(train_u.max())) if loaded is None and train_u.size else None
     try:
-        front_end = FPMPIFrontEnd.from_model(front_model)
+        front_end = FPMPIFrontEnd.from_model(front_model, input_range=fitted_range)
     except ValueError as exc:
         raise UserError(str(exc), where=str(model) if model is not None else "--model") from None
     train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
@@ -628,12 +669,17 @@ def online(
         "replay": "each evaluated run is fed to a fresh identifier sample by sample in recorded order "
                   "(block mode: the same kernel as step mode)",
         "split": split,
+        "left_out": left_out,
         "settle_s": settle,
         "offline": {"spec": hammerstein.spec, "source": source, "train": train_metrics,
                     "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()},
                     "status": _overall_status([c.offline_check.get("status", "ok") for c in comparisons])},
         "front_end": {"operators": int(front_end.r.size), "exponents": front_end.exps.tolist(),
-                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0])},
+                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0]),
+                      "input_range": list(fitted_range) if fitted_range is not None else None,
+                      "input_range_note": "the identifier's front end holds its input within the training rows' "
+                                          "range (the offline model is simulated without)" if fitted_range else
+                                          "none: the front end was loaded"},
         "online": {**settings, "weights": comparisons[0].weight_names if comparisons else []},
         "comparison": COMPARISON,
         "runs": [c.to_json() for c in comparisons],

@@ -57,7 +57,9 @@ __all__ = ["OIIR", "FPMPIFrontEnd", "oiir_step", "oiir_step_shaped", "oiir_block
 # -- front-end scalar parameters (fe) -----------------------------------------------------------
 F_U_SCALE = 0  # command units per normalised unit (v = u / u_scale)
 F_OFFSET = 1  # constant term of u_r
-N_FE = 2
+F_U_LO = 2  # the polynomial's input is held within [F_U_LO, F_U_HI], command units (default: +-inf)
+F_U_HI = 3
+N_FE = 4
 
 # -- OIIR scalars (xs): state, the guard's settings, and the guard's work area -------------------
 X_STARTED = 0
@@ -95,8 +97,11 @@ D_BIAS = 2  # 1: a constant regressor is appended
 
 @njit(cache=True, inline="always", error_model="numpy")
 def fpmpi_shape(u: float, fe: np.ndarray, exps: np.ndarray, w_p: np.ndarray) -> float:
-    """The front end's shaped input x = sum_i w_P,i sgn(v)|v|^e_i, v = u / u_scale (000 eq. 4-5)."""
-    v = u / fe[F_U_SCALE]
+    """The front end's shaped input x = sum_i w_P,i sgn(v)|v|^e_i, v = u / u_scale (000 eq. 4-5).
+
+    u is first held within [F_U_LO, F_U_HI] (by default +-inf: min/max return u itself, bit for
+    bit): a front end given the inputs it was fitted on does not extrapolate its polynomial."""
+    v = min(max(u, fe[F_U_LO]), fe[F_U_HI]) / fe[F_U_SCALE]
     x = 0.0
     for i in range(exps.shape[0]):
         x += w_p[i] * sgnpow(v, exps[i])
@@ -394,11 +399,15 @@ class FPMPIFrontEnd:
 
     ``exponents`` and ``w_p`` define the fractional polynomial of v = u / u_scale; ``thresholds``
     (in units of the polynomial's output) and ``w_h`` the one-sided play operators; ``offset`` is
-    the constant term. Output u_r in the output unit of the offline fit (um).
+    the constant term. Output u_r in the output unit of the offline fit (um). ``input_range``
+    (command units, default none): the input is held within it before the polynomial, e.g. the
+    range the front end was fitted on, beyond which its polynomial (up to u^4) is an arbitrary
+    extrapolation (the dSPACE 100 Hz capture, fitted on -90..-36 V: u_r fell to -13 um at 18 V
+    while the output rose to 0.6 um); the OIIR then explains the rest from its output lags.
     """
 
     def __init__(self, u_scale: float, exponents: np.ndarray, w_p: np.ndarray, thresholds: np.ndarray,
-                 w_h: np.ndarray, offset: float = 0.0):
+                 w_h: np.ndarray, offset: float = 0.0, input_range: tuple[float, float] | None = None):
         self.exps = np.ascontiguousarray(exponents, dtype=np.float64)
         self.w_p = np.ascontiguousarray(w_p, dtype=np.float64)
         self.r = np.ascontiguousarray(thresholds, dtype=np.float64)
@@ -411,12 +420,16 @@ class FPMPIFrontEnd:
             raise ValueError("thresholds must be >= 0")
         if not u_scale > 0:
             raise ValueError(f"u_scale={u_scale}: expected > 0")
-        self.fe = np.array([float(u_scale), float(offset)])
+        lo, hi = (-math.inf, math.inf) if input_range is None else (float(input_range[0]), float(input_range[1]))
+        if not lo <= hi:
+            raise ValueError(f"input_range={input_range}: expected lo <= hi")
+        self.fe = np.array([float(u_scale), float(offset), lo, hi])
         self.eta = np.zeros(self.r.shape[0])  # one-sided play (000 eq. 1)
 
     @classmethod
-    def from_model(cls, model: Any) -> FPMPIFrontEnd:
-        """From a fitted :class:`hilbench.models.Model` whose base is ``fpmpi``.
+    def from_model(cls, model: Any, input_range: tuple[float, float] | None = None) -> FPMPIFrontEnd:
+        """From a fitted :class:`hilbench.models.Model` whose base is ``fpmpi`` (``input_range``: see
+        the class).
 
         Effects without columns (``dynamics``, ``delay``) are ignored: the OIIR replaces the
         offline dynamics. Effects that add columns (asymmetry, aux channels, ...) are refused.
@@ -439,7 +452,13 @@ class FPMPIFrontEnd:
         span = float(base.constants["shaped_max"]) or 1.0
         r = np.arange(n_ops) / n_ops * span  # as FPMPI.columns
         w = np.asarray(model.weights, float)
-        return cls(float(model.norm["u_scale"]), exps, w_p, r, w[1:], offset=float(w[0]))
+        return cls(float(model.norm["u_scale"]), exps, w_p, r, w[1:], offset=float(w[0]), input_range=input_range)
+
+    def unbounded(self) -> FPMPIFrontEnd:
+        """The same front end without an input range (the offline model's own static part)."""
+        out = FPMPIFrontEnd(float(self.fe[F_U_SCALE]), self.exps, self.w_p, self.r, self.w_h,
+                            offset=float(self.fe[F_OFFSET]))
+        return out
 
     def new_state(self) -> dict[str, np.ndarray]:
         n = self.r.shape[0]
