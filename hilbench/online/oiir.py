@@ -74,7 +74,9 @@ X_DIVERGE_AFTER = 8  # setting: this many consecutive gross errors mean the iden
 X_Y_LO = 9  # lowest measured output taken into the lags so far, um (+inf before the first)
 X_Y_HI = 10  # highest, um (-inf before the first)
 X_BOUNDED = 11  # predictions held at the bound of the outputs seen (count)
-X_WORK = 12  # work area of the stability guard (:func:`work_size`): no allocation per sample
+X_BOUND_ON = 12  # setting: 1 holds predictions within the bound, 0 does not (tests: the unguarded filter)
+X_DROP_RUN = 13  # consecutive samples without a finite measurement
+X_WORK = 14  # work area of the stability guard (:func:`work_size`): no allocation per sample
 N_XS = X_WORK  # scalars before the work area; the array has N_XS + work_size(N) entries
 
 
@@ -289,6 +291,15 @@ def oiir_step_shaped(
     for i in range(m1 - 1, 0, -1):
         phi[i] = phi[i - 1]
     phi[0] = ur
+    if math.isfinite(y):
+        if xs[X_DROP_RUN] >= xs[X_DIVERGE_AFTER]:
+            # The sensor is back after a dropout longer than a spike: the output lags hold the
+            # filter's own free run, so they are refilled with measurements before it learns again,
+            # as at the start (learning from them set a 2nd-order ARX back by ~1e4 samples).
+            xs[X_FILLED] = 0.0
+        xs[X_DROP_RUN] = 0.0
+    else:
+        xs[X_DROP_RUN] += 1.0
     if xs[X_FILLED] < max(m1 - 1, nd):
         # Lags from before the first sample are guesses: predict, but keep them out of the fit
         # (a handful of wrong rows bias a noise-free, ill-conditioned least squares visibly).
@@ -301,6 +312,10 @@ def oiir_step_shaped(
         y_m = R.rls_step(phi, y, theta, P, g, cfg, st)
         status = st[R.ST_STATUS]
         y_in = st[R.ST_CLEAN] if (status == R.NONFINITE or status == R.OUTLIER_SKIPPED) else y
+        if status == R.NONFINITE and math.isfinite(y):
+            # not learnt from (the prediction or the regressor is not finite), but the measurement
+            # is good: it goes into the lags, so that a non-finite history ends here
+            y_in = y
         # -- guard 1: a stable filter. A skipped measurement puts the prediction into the output
         # lags, so the OIIR then runs free on its own denominator; with a pole on or outside the
         # unit circle that free run grows without bound, every later error is "gross", every later
@@ -333,6 +348,7 @@ def oiir_step_shaped(
             st[R.ST_SCALE] = 0.0
             xs[X_DIVERGED] += 1.0
             xs[X_SKIP_RUN] = 0.0
+            xs[X_FILLED] = 0.0  # the lags are predictions: refilled with measurements before learning
             if math.isfinite(y):
                 y_in = y  # the measurement back into the lags: the free run ends here
     # -- guard 3: a bounded prediction. The outputs seen so far span [lo, hi]; a prediction beyond
@@ -344,7 +360,7 @@ def oiir_step_shaped(
     # the lags, so the filter's free run stays within the bound too.
     lo = xs[X_Y_LO]
     hi = xs[X_Y_HI]
-    if hi >= lo:
+    if hi >= lo and xs[X_BOUND_ON] != 0.0:
         span = hi - lo
         if not y_m <= hi + span:  # also NaN
             y_m = hi + span if y_m > hi else lo - span if y_m < lo else phi[m1] if nd > 0 else lo
@@ -487,11 +503,17 @@ class OIIR:
     initial weights [p_0..p_M, q_1..q_N(, bias)] (default 0). Remaining keywords go to the RLS
     (:func:`hilbench.online.rls.make_config`): ``lam`` (000 uses 1), ``delta`` (000: 1e5),
     ``forgetting``, ``outlier``, ...
+
+    The guard (decision 0082; None / False switch a part off, for tests): ``pole_radius`` (default
+    0.999) bounds the poles of 1 - Q after every update; ``diverge_after`` (default "auto":
+    max(20, 2 max(M, N)) samples) gross errors in a row reset P to delta I and put the measurement
+    back into the lags; ``bound_predictions`` holds a prediction within the outputs seen widened by
+    their span.
     """
 
     def __init__(self, front_end: FPMPIFrontEnd, M: int = 3, N: int = 5, *, bias: bool = False,
-                 theta0: np.ndarray | None = None, delta: float = 1.0e5, pole_radius: float = POLE_RADIUS,
-                 diverge_after: int | None = None, **rls_options: Any):
+                 theta0: np.ndarray | None = None, delta: float = 1.0e5, pole_radius: float | None = POLE_RADIUS,
+                 diverge_after: int | str | None = "auto", bound_predictions: bool = True, **rls_options: Any):
         if M < 0 or N < 0:
             raise ValueError(f"orders M={M}, N={N}: expected >= 0")
         self.front_end = front_end
@@ -499,14 +521,17 @@ class OIIR:
         self.n_weights = self.M + 1 + self.N + (1 if bias else 0)
         self.dims = np.array([self.M, self.N, 1 if bias else 0], dtype=np.int64)
         self.cfg = R.make_config(self.n_weights, delta=delta, **rls_options)
-        if not 0.0 < pole_radius < 1.0:
+        # None switches a guard off: for tests that show what it prevents, not for use
+        if pole_radius is not None and not 0.0 < pole_radius < 1.0:
             raise ValueError(f"pole_radius={pole_radius}: expected 0 < pole_radius < 1 (a stable filter)")
-        self.pole_radius = float(pole_radius)
+        self.pole_radius = math.inf if pole_radius is None else float(pole_radius)
         # Spikes last a sample or a few; twice the regressor's memory of gross errors in a row is a
         # lost plant, not a sensor (and never fewer than 20 samples).
-        self.diverge_after = int(max(20, 2 * max(self.M, self.N)) if diverge_after is None else diverge_after)
-        if self.diverge_after < 1:
+        if diverge_after is not None and diverge_after != "auto" and not int(diverge_after) >= 1:
             raise ValueError(f"diverge_after={diverge_after}: expected >= 1 sample")
+        self.diverge_after = (max(20, 2 * max(self.M, self.N)) if diverge_after == "auto" else
+                              math.inf if diverge_after is None else int(diverge_after))
+        self.bound_predictions = bool(bound_predictions)
         self._theta0 = theta0
         self.reset()
 
@@ -527,6 +552,7 @@ class OIIR:
         self.xs = np.zeros(N_XS + work_size(self.N))
         self.xs[X_POLE_RADIUS] = self.pole_radius
         self.xs[X_DIVERGE_AFTER] = float(self.diverge_after)
+        self.xs[X_BOUND_ON] = 1.0 if self.bound_predictions else 0.0
         self.phi = np.zeros(self.n_weights)
         s = R.new_state(self.n_weights, float(self.cfg[R.C_DELTA]), self._theta0)
         self.theta, self.P, self.g, self.st = s["theta"], s["P"], s["g"], s["st"]
