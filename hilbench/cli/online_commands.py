@@ -13,6 +13,12 @@ What is compared, per evaluated run (000 Table 4, metrics of eq. 18 in percent):
   nothing else. The online error means something only against this: an identifier that merely
   copied its output lags would score it.
 
+The offline free run is checked per run (:func:`offline_verdict`): unstable dynamics or a free run
+that diverges is replaced by the static FPMPI's free run, or refused with the reasons. Where online
+loses to y(k-1) the run says why, from numbers (:func:`persistence_verdict`). A capture's leading
+rest is neither trained on nor scored, and the identifier's front end holds its input within the
+training rows' range (decision 0083).
+
 The identifier starts afresh on each evaluated run (zero weights, P = delta I, operators at rest)
 and sees every sample of the run in recorded order; block mode runs the same numba kernel as the
 step mode of the runner's loop, bit for bit (tests/online). Errors leave out the first ``--settle``

@@ -33,6 +33,14 @@ block mode and step mode give identical results):
    load scenario of 000 that tripled the online error, 0.24 -> 0.78 % re_N2, measured with the
    offline Hammerstein fit's FPMPI as front end).
 
+5. The guard (decision 0082), in the same kernel: after each RLS update the poles of 1 - Q are kept
+   within ``pole_radius`` (0.999; Schur-Cohn test, radial contraction with the numerator moved to
+   its least-squares best, :func:`project_poles`), so the filter's free run over skipped samples is
+   bounded; a run of ``diverge_after`` gross errors (or non-finite weights) resets P to delta I and
+   puts the measurements back into the lags; a prediction beyond the outputs seen, widened by their
+   span, is held at that bound. Counted: ``poles_projected``, ``divergence_resets``,
+   ``predictions_bounded``.
+
 A non-finite input sample is replaced by the previous input (the actuator holds its last command)
 and counted; the operators never see NaN. The regressor history starts in steady state at the
 first sample (all u_r lags = u_r(0), all y lags = y(0)), as ``lfilter_zi`` starts a filter, for
