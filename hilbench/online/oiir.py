@@ -93,6 +93,13 @@ def work_size(N: int) -> int:
     (2 (N + 1)) and the projection's solve (2 N + N^2)."""
     return 2 * (N + 1) + 2 * N + N * N
 
+
+@njit(cache=True, inline="always")
+def filter_at(nd: int) -> int:
+    """Where in ``xs`` the filter's weights start (after the work area of order nd): the weights
+    that predict, the estimator's own theta projected into the admissible region."""
+    return X_WORK + 2 * (nd + 1) + 2 * nd + nd * nd
+
 #: default bound of the OIIR's pole radius: the slowest admissible mode decays by 1/e in 1000 samples
 #: (0.2 s at 5 kHz); anything slower is a drift the equation-error fit invents from lags that barely
 #: move (data sampled far faster than the dynamics), and a pole at or beyond 1 makes the filter's
@@ -284,6 +291,8 @@ def oiir_step_shaped(
     ur = fpmpi_operators(x, fe, r, eta, w_h, ops, xbuf, opbuf)
     m1 = dims[D_M] + 1
     nd = dims[D_N]
+    n_w = theta.shape[0]
+    f0 = filter_at(nd)
     if xs[X_STARTED] == 0.0:
         xs[X_STARTED] = 1.0
         y0 = y if math.isfinite(y) else 0.0
@@ -313,13 +322,17 @@ def oiir_step_shaped(
         # (a handful of wrong rows bias a noise-free, ill-conditioned least squares visibly).
         xs[X_FILLED] += 1.0
         y_m = 0.0
-        for i in range(theta.shape[0]):
-            y_m += theta[i] * phi[i]
+        for i in range(n_w):
+            y_m += xs[f0 + i] * phi[i]
         y_in = y if math.isfinite(y) else y_m
     else:
-        y_m = R.rls_step(phi, y, theta, P, g, cfg, st)
+        # the filter's a-priori prediction: the weights of sample k-1, within the admissible region
+        y_m = 0.0
+        for i in range(n_w):
+            y_m += xs[f0 + i] * phi[i]
+        R.rls_step(phi, y, theta, P, g, cfg, st)  # the estimator's own, unconstrained prediction unused
         status = st[R.ST_STATUS]
-        y_in = st[R.ST_CLEAN] if (status == R.NONFINITE or status == R.OUTLIER_SKIPPED) else y
+        y_in = y_m if (status == R.NONFINITE or status == R.OUTLIER_SKIPPED) else y
         if status == R.NONFINITE and math.isfinite(y):
             # not learnt from (the prediction or the regressor is not finite), but the measurement
             # is good: it goes into the lags, so that a non-finite history ends here
@@ -328,8 +341,14 @@ def oiir_step_shaped(
         # lags, so the OIIR then runs free on its own denominator; with a pole on or outside the
         # unit circle that free run grows without bound, every later error is "gross", every later
         # sample is skipped, and the predictions reach inf (the dSPACE 20 Hz capture did this).
+        # The filter is the estimate, projected when its poles leave the region; the estimator keeps
+        # its own theta, the least-squares solution its P belongs to (projecting theta itself made
+        # the next updates start from a point that is no least-squares solution: with lambda = 1 it
+        # never quite returns; 000's 1 Hz scenario: 0.151 -> 0.199 % re_N2).
+        for i in range(n_w):
+            xs[f0 + i] = theta[i]
         if nd > 0 and not poles_within(theta, m1, nd, xs[X_POLE_RADIUS], xs, X_WORK):
-            project_poles(theta, P, m1, nd, xs[X_POLE_RADIUS], xs, X_WORK)
+            project_poles(xs[f0:f0 + n_w], P, m1, nd, xs[X_POLE_RADIUS], xs, X_WORK)
             xs[X_PROJECTED] += 1.0
         # -- guard 2: divergence. Gross errors are sensor spikes only while they are short; a run of
         # them longer than the regressor's memory means the identifier has lost the plant (its lags
@@ -339,14 +358,14 @@ def oiir_step_shaped(
         else:
             xs[X_SKIP_RUN] = 0.0
         finite = True
-        for i in range(theta.shape[0]):
-            finite = finite and math.isfinite(theta[i])
+        for i in range(n_w):
+            finite = finite and math.isfinite(theta[i]) and math.isfinite(xs[f0 + i])
         if xs[X_SKIP_RUN] >= xs[X_DIVERGE_AFTER] or not finite:
             if not finite:
-                for i in range(theta.shape[0]):
+                for i in range(n_w):
                     theta[i] = 0.0
+                    xs[f0 + i] = 0.0
             delta = cfg[R.C_DELTA]
-            n_w = theta.shape[0]
             for i in range(n_w):
                 for j in range(n_w):
                     P[i, j] = 0.0
@@ -412,8 +431,9 @@ def oiir_block(
             countdown -= 1
             if countdown == 0:
                 countdown = decimate
+                f0 = filter_at(dims[D_N])
                 for i in range(theta.shape[0]):
-                    theta_hist[rows, i] = theta[i]
+                    theta_hist[rows, i] = xs[f0 + i]  # the filter's weights (= theta inside the region)
                 rows += 1
     return rows
 
@@ -557,7 +577,9 @@ class OIIR:
         """Fresh operators, empty history, theta0, P0 = delta I."""
         fs = self.front_end.new_state()
         self.ops, self.xbuf, self.opbuf = fs["ops"], fs["xbuf"], fs["opbuf"]
-        self.xs = np.zeros(N_XS + work_size(self.N))
+        self.xs = np.zeros(N_XS + work_size(self.N) + self.n_weights)
+        if self._theta0 is not None:  # the filter starts at theta0 too (projected at the first update)
+            self.xs[N_XS + work_size(self.N):] = np.asarray(self._theta0, dtype=np.float64).reshape(self.n_weights)
         self.xs[X_POLE_RADIUS] = self.pole_radius
         self.xs[X_DIVERGE_AFTER] = float(self.diverge_after)
         self.xs[X_BOUND_ON] = 1.0 if self.bound_predictions else 0.0
@@ -599,21 +621,30 @@ class OIIR:
                 "poles_projected": int(self.xs[X_PROJECTED]), "divergence_resets": int(self.xs[X_DIVERGED]),
                 "predictions_bounded": int(self.xs[X_BOUNDED])}
 
+    @property
+    def filter_weights(self) -> np.ndarray:
+        """The weights that predict: the estimate theta, projected when its poles leave the
+        admissible region (a view into the state)."""
+        return self.xs[N_XS + work_size(self.N):]
+
     def poles(self, theta: np.ndarray | None = None) -> np.ndarray:
-        """Poles of the OIIR's denominator 1 - Q(z^-1) (np.roots: for reports, not per sample)."""
-        t = self.theta if theta is None else theta
+        """Poles of the OIIR's denominator 1 - Q(z^-1), of the filter's weights by default (np.roots:
+        for reports, not per sample)."""
+        t = self.filter_weights if theta is None else theta
         q = np.asarray(t[self.M + 1 : self.M + 1 + self.N], float)
         return np.roots(np.concatenate([[1.0], -q])) if q.size else np.zeros(0, complex)
 
     def transfer_function(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current weights as (b, a) in scipy.signal.lfilter convention: G = P / (1 - Q)."""
-        b = self.theta[: self.M + 1].copy()
-        a = np.concatenate([[1.0], -self.theta[self.M + 1 : self.M + 1 + self.N]])
+        """The filter's weights as (b, a) in scipy.signal.lfilter convention: G = P / (1 - Q)."""
+        w = self.filter_weights
+        b = w[: self.M + 1].copy()
+        a = np.concatenate([[1.0], -w[self.M + 1 : self.M + 1 + self.N]])
         return b, a
 
     def static_gain(self, theta: np.ndarray | None = None) -> float:
-        """DC gain of the OIIR, sum p / (1 - sum q): um of output per um of u_r."""
-        t = self.theta if theta is None else theta
+        """DC gain of the OIIR, sum p / (1 - sum q): um of output per um of u_r (the filter's
+        weights by default)."""
+        t = self.filter_weights if theta is None else theta
         return float(np.sum(t[: self.M + 1]) / (1.0 - np.sum(t[self.M + 1 : self.M + 1 + self.N])))
 
 
