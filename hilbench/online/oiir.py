@@ -35,8 +35,9 @@ block mode and step mode give identical results):
 
 5. The guard (decision 0082), in the same kernel: after each RLS update the poles of 1 - Q are kept
    within ``pole_radius`` (0.999; Schur-Cohn test, radial contraction with the numerator moved to
-   its least-squares best, :func:`project_poles`), so the filter's free run over skipped samples is
-   bounded; a run of ``diverge_after`` gross errors (or non-finite weights) resets P to delta I and
+   its least-squares best, :func:`project_poles`) in the *filter*, a copy of theta that predicts
+   (``OIIR.filter_weights``, recorded as the weights), while the RLS keeps its own least-squares
+   theta; so the filter's free run over skipped samples is bounded; a run of ``diverge_after`` gross errors (or non-finite weights) resets P to delta I and
    puts the measurements back into the lags; a prediction beyond the outputs seen, widened by their
    span, is held at that bound. Counted: ``poles_projected``, ``divergence_resets``,
    ``predictions_bounded``.
