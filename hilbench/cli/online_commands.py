@@ -13,6 +13,12 @@ What is compared, per evaluated run (000 Table 4, metrics of eq. 18 in percent):
   nothing else. The online error means something only against this: an identifier that merely
   copied its output lags would score it.
 
+The offline free run is checked per run (:func:`offline_verdict`): unstable dynamics or a free run
+that diverges is replaced by the static FPMPI's free run, or refused with the reasons. Where online
+loses to y(k-1) the run says why, from numbers (:func:`persistence_verdict`). A capture's leading
+rest is neither trained on nor scored, and the identifier's front end holds its input within the
+training rows' range (decision 0083).
+
 The identifier starts afresh on each evaluated run (zero weights, P = delta I, operators at rest)
 and sees every sample of the run in recorded order; block mode runs the same numba kernel as the
 step mode of the runner's loop, bit for bit (tests/online). Errors leave out the first ``--settle``
@@ -27,6 +33,7 @@ the same order as stepping the identifier in the loop, without touching the runn
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
@@ -68,12 +75,18 @@ class RunComparison:
     metrics: dict[str, dict[str, float]] = field(default_factory=dict)
     counters: dict[str, Any] = field(default_factory=dict)
     static_gain: float = float("nan")
+    #: the offline free run's verdict (:func:`offline_verdict`): status, what was scored, why
+    offline_check: dict[str, Any] = field(default_factory=dict)
+    #: online against y(k-1) (:func:`persistence_verdict`): verdict, ratio, reasons with numbers
+    against_persistence: dict[str, Any] = field(default_factory=dict)
+    poles: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
 
     def to_json(self) -> dict[str, Any]:
         from hilbench.identify.fitting import finite_json
 
         idx = np.flatnonzero(self.rows)
         on, off, per = (self.metrics[k]["re_n2_pct"] for k in ("online", "offline", "persistence"))
+        off = off if off is not None and math.isfinite(off) else math.nan
         return finite_json({
             "run": self.key,
             "samples": int(self.output.size),
@@ -84,6 +97,10 @@ class RunComparison:
             "persistence": self.metrics["persistence"],
             "re_n2_ratio_offline_over_online": off / on if on > 0 else None,
             "re_n2_ratio_persistence_over_online": per / on if on > 0 else None,
+            "offline_check": self.offline_check,
+            "online_vs_persistence": self.against_persistence,
+            "poles_final": {"max_radius": float(np.max(np.abs(self.poles))) if self.poles.size else 0.0,
+                            "radius_bound": self.counters.get("pole_radius")},
             "weights_final": {n: float(w) for n, w in zip(self.weight_names, self.weights[-1])}
             if len(self.weights) else {},
             "static_gain_final": self.static_gain,
@@ -135,19 +152,238 @@ def record_on_rig(config: str, excitation: list[str], record: Path | None, realt
     return out, cfg.name
 
 
+#: A free run farther than this many measured output spans beyond the measured output range has
+#: diverged: no model error is that large; it is an unstable filter, or a polynomial evaluated far
+#: outside the inputs it was fitted on (the piezo stack: 3.6e9 um for a 39 um stroke).
+DIVERGED_SPANS = 10.0
+#: The front end is said to run outside its fitted inputs when the scored inputs leave the training
+#: inputs' range by more than this fraction of the scored inputs' span.
+EXTRAPOLATION_FRACTION = 0.1
+#: Online within this factor of y(k-1) over the last quarter of the scored rows is "at y(k-1)" there.
+STEADY_TOLERANCE = 1.05
+
+
+def _re_n2(y: np.ndarray, pred: np.ndarray) -> float:
+    n = float(np.linalg.norm(y))
+    return 100.0 * float(np.linalg.norm(y - pred)) / n if n > 0 else math.nan
+
+
+def _escape_spans(y: np.ndarray, pred: np.ndarray) -> float:
+    """How far ``pred`` leaves the range of ``y``, in spans of ``y`` (0: within; inf: not finite)."""
+    if pred.size == 0:
+        return 0.0
+    if not np.all(np.isfinite(pred)):
+        return math.inf
+    lo, hi = float(np.min(y)), float(np.max(y))
+    span = max(hi - lo, 1e-12 * max(abs(lo), abs(hi), 1.0))
+    return max(0.0, (float(np.max(pred)) - hi) / span, (lo - float(np.min(pred))) / span)
+
+
+def dynamics_poles(model: Any, sample_rate_hz: float) -> np.ndarray:
+    """Discrete poles of a model's ``dynamics`` effect at the run's rate (none without dynamics)."""
+    dyn = model.effect("dynamics")
+    if dyn is None:
+        return np.zeros(0, complex)
+    _, a = dyn.coefficients(sample_rate_hz)
+    a = np.trim_zeros(np.asarray(a, float), "b")
+    return np.roots(a) if a.size > 1 else np.zeros(0, complex)
+
+
+def input_extrapolation(train_u: np.ndarray, scored_u: np.ndarray, unit: str) -> str | None:
+    """A sentence when the scored inputs leave the range the front end was fitted on, else None."""
+    tu, su = train_u[np.isfinite(train_u)], scored_u[np.isfinite(scored_u)]
+    if tu.size == 0 or su.size == 0:
+        return None
+    t_lo, t_hi, s_lo, s_hi = float(tu.min()), float(tu.max()), float(su.min()), float(su.max())
+    beyond = max(t_lo - s_lo, s_hi - t_hi, 0.0)
+    if beyond <= EXTRAPOLATION_FRACTION * max(s_hi - s_lo, 1e-300):
+        return None
+    held = " (held still: nothing to fit the FPMPI on)" if t_hi - t_lo <= 1e-9 * max(abs(t_lo), abs(t_hi), 1.0) else ""
+    return (f"the FPMPI front end was fitted on inputs {t_lo:.4g}..{t_hi:.4g} {unit}{held} and runs here at "
+            f"{s_lo:.4g}..{s_hi:.4g} {unit}: its polynomial is evaluated outside the inputs it was fitted on")
+
+
+def offline_verdict(y: np.ndarray, hammerstein: np.ndarray, static: np.ndarray | None, rows: np.ndarray,
+                    poles: np.ndarray, extrapolation: str | None, output_unit: str) -> tuple[dict[str, Any], np.ndarray | None]:
+    """Whether the offline free run may be scored, and what to score.
+
+    ``status``: ``ok`` (the Hammerstein free run), ``static-fallback`` (its dynamics are unstable or
+    its free run diverges, the static FPMPI's free run does not: that is scored instead) or
+    ``refused`` (both diverge: nothing is scored, the figures are null). Divergence: a free run more
+    than :data:`DIVERGED_SPANS` measured output spans beyond the measured range on the scored rows,
+    or not finite. The reasons carry the numbers.
+    """
+    yr = y[rows]
+    radius = float(np.max(np.abs(poles))) if poles.size else 0.0
+    check: dict[str, Any] = {"dynamics_pole_radius": radius if poles.size else None,
+                             "diverged_beyond_spans": DIVERGED_SPANS}
+    reasons: list[str] = []
+    unstable = poles.size > 0 and radius >= 1.0
+    if unstable:
+        reasons.append(f"the dynamics have a pole at |z| = {radius:.6g} (>= 1): the filter is unstable")
+    esc = _escape_spans(yr, hammerstein[rows])
+    check["free_run_escape_spans"] = esc
+    diverged = esc > DIVERGED_SPANS
+    if diverged:
+        peak = float(np.max(np.abs(hammerstein[rows][np.isfinite(hammerstein[rows])]), initial=0.0))
+        reasons.append(f"its free run diverges: {'not finite' if not math.isfinite(esc) else f'{esc:.3g} spans'} "
+                       f"beyond the measured output range {float(yr.min()):.4g}..{float(yr.max()):.4g} {output_unit}"
+                       f" (|y| up to {peak:.3g} {output_unit}; bound {DIVERGED_SPANS:g} spans)")
+    if extrapolation:
+        check["warnings"] = [extrapolation]
+    if not (unstable or diverged):
+        check.update(status="ok", scored="hammerstein free run", reasons=[])
+        return check, hammerstein
+    static_esc = _escape_spans(yr, static[rows]) if static is not None else math.inf
+    check["static_escape_spans"] = static_esc if static is not None else None
+    if static is not None and static_esc <= DIVERGED_SPANS:
+        if diverged and not unstable and poles.size:
+            reasons.append(f"the dynamics are stable (|z| <= {radius:.6g}) and the static FPMPI stays within "
+                           f"{static_esc:.3g} spans: the dynamics with this front end diverge")
+        check.update(status="static-fallback", scored="static FPMPI free run (dynamics and delay left out)",
+                     reasons=reasons)
+        return check, static
+    if static is not None:
+        reasons.append(f"the static FPMPI alone diverges too ({'not finite' if not math.isfinite(static_esc) else f'{static_esc:.3g} spans'}): "
+                       "the front end, not the dynamics" + ("" if extrapolation else ""))
+    if extrapolation:
+        reasons.append(extrapolation)
+    check.update(status="refused", scored=None, reasons=reasons)
+    return check, None
+
+
+def _drive_frequency_hz(u: np.ndarray, fs: float) -> float:
+    """The scored input's strongest frequency (NaN when it does not move)."""
+    u = u[np.isfinite(u)]
+    if u.size < 8 or np.ptp(u) == 0:
+        return math.nan
+    spec = np.abs(np.fft.rfft(u - u.mean()))
+    k = int(np.argmax(spec[1:])) + 1
+    return k * fs / u.size
+
+
+def persistence_verdict(y: np.ndarray, online: np.ndarray, per: np.ndarray, rows: np.ndarray, fs: float,
+                        u: np.ndarray, counters: dict[str, Any], weights_final: np.ndarray, M: int, N: int,
+                        extrapolation: str | None, output_unit: str) -> dict[str, Any]:
+    """Online against y(k-1) on the scored rows, and when online is worse, why, from numbers.
+
+    What is looked at: the errors over the four quarters of the scored rows and over their last
+    half (a start-up or an episode, or the steady state too); the identifier's guard counters; the
+    final weights (sum q near 1 is y(k-1) itself); samples per drive cycle and the output's noise
+    (y(k-1) is hard to beat when the output moves less per sample than the model's own mismatch);
+    whether the front end runs outside its fitted inputs.
+    """
+    from hilbench.identify.statistics import difference_noise_std
+
+    idx = np.flatnonzero(rows)
+    on, pp = _re_n2(y[idx], online[idx]), _re_n2(y[idx], per[idx])
+    quarters = [q for q in np.array_split(idx, 4) if q.size]
+    q_on = [_re_n2(y[q], online[q]) for q in quarters]
+    q_per = [_re_n2(y[q], per[q]) for q in quarters]
+    last = quarters[-1]
+    on_last, per_last = q_on[-1], q_per[-1]
+    sq = [float(np.sum((y[q] - online[q]) ** 2)) for q in quarters]
+    worst = int(np.argmax(sq))
+    share = sq[worst] / sum(sq) if sum(sq) > 0 else 0.0
+    f_drive = _drive_frequency_hz(u[idx], fs)
+    per_cycle = fs / f_drive if math.isfinite(f_drive) and f_drive > 0 else math.nan
+    d = np.diff(y[idx], 4)
+    noise = difference_noise_std(d[np.isfinite(d)], order=4) if d.size > 8 else math.nan
+    per_rmse = float(np.sqrt(np.mean((y[last] - per[last]) ** 2)))
+    on_rmse = float(np.sqrt(np.mean((y[last] - online[last]) ** 2)))
+    sum_q = float(np.sum(weights_final[M + 1:M + 1 + N])) if weights_final.size else math.nan
+    doc: dict[str, Any] = {
+        "verdict": "better" if on <= pp else "worse",
+        "ratio_online_over_persistence": on / pp if pp > 0 else None,
+        "quarters_re_n2_pct": {"online": q_on, "persistence": q_per},
+        "worst_quarter": worst + 1, "worst_quarter_share": share,
+        "samples_per_drive_cycle": per_cycle, "output_noise_std": noise,
+        "last_quarter_rmse": {"online": on_rmse, "persistence": per_rmse}, "sum_q_final": sum_q, "reasons": [],
+    }
+    if on <= pp:
+        return doc
+    reasons: list[str] = []
+    span_s = (quarters[worst][0] / fs, (quarters[worst][-1] + 1) / fs)
+    where = f" ({span_s[0]:.4g}-{span_s[1]:.4g} s into the run)"
+    episode = (f"quarter {worst + 1} of the scored rows{where} holds {100 * share:.0f} % of the online squared "
+               f"error ({q_on[worst]:.3g} % there, y(k-1) {q_per[worst]:.3g} %)")
+    if on_last <= STEADY_TOLERANCE * per_last:
+        reasons.append(f"an episode, not the steady state: over the last quarter of the scored rows online "
+                       f"{on_last:.3g} %, y(k-1) {per_last:.3g} %; {episode}")
+    else:
+        reasons.append(f"the steady state too: over the last quarter of the scored rows online {on_last:.3g} % > "
+                       f"y(k-1) {per_last:.3g} % (rms miss {on_rmse:.3g} vs {per_rmse:.3g} {output_unit})")
+        if share > 0.5:
+            reasons.append(episode)
+        if math.isfinite(noise) and noise > 0 and per_rmse <= 3.0 * math.sqrt(2.0) * noise:
+            reasons.append(f"y(k-1) is already at the sensor's noise (rms miss {per_rmse:.3g} {output_unit}, "
+                           f"{per_rmse / noise:.3g} x the noise {noise:.2g} {output_unit}): nothing is left for a "
+                           "one-step prediction to gain")
+        elif math.isfinite(per_cycle) and per_cycle >= 100.0:
+            reasons.append(f"sampled far faster than the drive ({per_cycle:.3g} samples per cycle, {f_drive:.3g} Hz "
+                           f"at {fs:.4g} Hz): the output moves only {per_rmse:.3g} {output_unit} rms per sample, "
+                           f"less than the identifier's own rms miss {on_rmse:.3g} {output_unit}")
+        if math.isfinite(sum_q) and abs(sum_q - 1.0) < 0.05:
+            reasons.append(f"the denominator settled at an integrator (sum q = {sum_q:.4g}): the weights model the "
+                           "change from the last outputs, so what the numerator adds is the front end's error")
+    guard = {k: int(counters.get(k, 0)) for k in ("divergence_resets", "predictions_bounded", "poles_projected")}
+    if guard["divergence_resets"] or guard["predictions_bounded"]:
+        reasons.append(f"the identifier's guard acted: {guard['divergence_resets']} divergence resets, "
+                       f"{guard['predictions_bounded']} predictions held at the bound of the outputs seen, "
+                       f"{guard['poles_projected']} pole projections")
+    if extrapolation:
+        reasons.append(extrapolation)
+    doc["reasons"] = reasons
+    return doc
+
+
+def leading_rests(runs: list[Any]) -> tuple[list[np.ndarray], list[str]]:
+    """Rows each run keeps for training and scoring: all but the leading rest of a run whose history
+    is unknown (an imported capture; :func:`hilbench.identify.trimming.leading_rest`), and a note
+    per run left short.
+
+    ``fit`` and ``diagnose`` leave such a rest out only where the output moves on its own in it
+    (a power-on transient). Here it goes whether settled or not: a held input identifies no
+    hysteresis, and the default split trains on the first part of each run, which on a capture that
+    rests first is the rest alone (the piezo stack rests 3.26 s of 10 s: its training rows held 0 V
+    and the FPMPI fitted on them reached 3.6e9 um at 150 V; decision 0083). The identifier still
+    runs through the rest: it is only neither trained on nor scored."""
+    from hilbench.identify.trimming import leading_rest
+
+    keeps, notes = [], []
+    for r in runs:
+        d = r.data
+        keep = np.ones(len(d), bool)
+        history_known = bool(getattr(d, "chain", False)) or getattr(d, "approach_from", None) is not None
+        k = 0 if history_known or not len(d) else leading_rest(np.asarray(d.input, float), float(d.sample_rate_hz))
+        if k:
+            keep[:k] = False
+            notes.append(f"run {r.key}: 0-{k / d.sample_rate_hz:.4g} s neither trained on nor scored: the input rests at "
+                         f"{float(d.input[0]):.4g} before the excitation starts (a held input identifies no hysteresis)")
+        keeps.append(keep)
+    return keeps, notes
+
+
 def compare(
     runs: list[Any], offline_model: Any, front_end: Any, *, M: int = 3, N: int = 5, lam: float = 1.0,
     delta: float = 1.0e5, forgetting: str = "directional", settle_s: float = 0.5,
+    units: tuple[str, str] = ("V", "um"),
 ) -> list[RunComparison]:
     """Online vs offline vs persistence on every run with validation rows (``runs``: FitRun with
-    masks set). The offline model is simulated free-run over all runs, memory chained as recorded."""
+    masks set). The offline model is simulated free-run over all runs, memory chained as recorded;
+    where that free run is unstable or diverges, the front end's static FPMPI (operators at rest at
+    the run's start) is its fallback (:func:`offline_verdict`). ``units``: (input, output)."""
     from hilbench.identify.metrics import metrics
     from hilbench.online.oiir import OIIR, persistence
 
     active = [r for r in runs if len(r.data)]
-    offline_all = offline_model.simulate_runs([r.data for r in active])
+    datas = [r.data for r in active]
+    offline_all = offline_model.simulate_runs(datas)
+    static_fe = front_end.unbounded()  # the offline model's static part as fitted, extrapolation and all
+    static_all = [static_fe.simulate(np.asarray(d.input, dtype=np.float64)) for d in datas]
+    train_u = np.concatenate([np.asarray(r.data.input, float)[r.train] for r in active]) if active else np.zeros(0)
     out = []
-    for r, y_off in zip(active, offline_all):
+    for r, y_off, y_static in zip(active, offline_all, static_all):
         if not r.validation.any():
             continue
         u = np.asarray(r.data.input, dtype=np.float64)
@@ -157,16 +393,26 @@ def compare(
         res = oiir.run(u, y, decimate=1)
         y_per = persistence(y)
         rows = r.validation & (np.arange(y.size) >= round(settle_s * fs))
-        rows &= np.isfinite(y) & np.isfinite(res["y_m"]) & np.isfinite(y_off) & np.isfinite(y_per)
-        c = RunComparison(r.key, r.data.name, fs, u, y, res["y_m"], np.asarray(y_off, float), y_per, res["u_r"],
-                          res["weights"], oiir.weight_names, rows)
+        rows &= np.isfinite(y) & np.isfinite(res["y_m"]) & np.isfinite(y_per)
         if not rows.any():
             raise UserError(f"run {r.key}: no row left to score after the first {settle_s:g} s and the training rows",
                             hint="lower --settle or give the run fewer training rows")
+        y_off = np.asarray(y_off, float)
+        extrapolation = input_extrapolation(train_u, u[rows], units[0])
+        check, scored_off = offline_verdict(y, y_off, None if y_static is None else np.asarray(y_static, float),
+                                            rows, dynamics_poles(offline_model, fs), extrapolation, units[1])
+        shown_off = scored_off if scored_off is not None else np.full(y.size, np.nan)
+        c = RunComparison(r.key, r.data.name, fs, u, y, res["y_m"], shown_off, y_per, res["u_r"],
+                          res["weights"], oiir.weight_names, rows)
+        c.offline_check = check
         c.metrics = {name: _pick(metrics(y[rows], pred[rows]))
-                     for name, pred in (("online", c.online), ("offline", c.offline), ("persistence", y_per))}
-        c.counters = oiir.counters()
+                     for name, pred in (("online", c.online), ("offline", shown_off), ("persistence", y_per))}
+        c.counters = {**oiir.counters(), "pole_radius": oiir.pole_radius}
         c.static_gain = oiir.static_gain()
+        c.poles = oiir.poles()
+        c.against_persistence = persistence_verdict(
+            y, c.online, y_per, rows, fs, u, c.counters, res["weights"][-1] if len(res["weights"]) else np.zeros(0),
+            M, N, extrapolation, units[1])
         out.append(c)
     return out
 
@@ -175,6 +421,7 @@ def write_online(path: Path, comparisons: list[RunComparison], settings: dict[st
                  input_unit: str) -> list[str]:
     """One new run per evaluated run: measured input and output, online and offline outputs, the
     FPMPI output u_r and the weights after every sample (``weight_p0``.., ``weight_q1``..)."""
+    from hilbench.identify.fitting import finite_json
     from hilbench.recording.hdf5 import RecordingWriter
 
     writer = RecordingWriter(path)
@@ -198,7 +445,7 @@ def write_online(path: Path, comparisons: list[RunComparison], settings: dict[st
         names.append(writer.write_run(
             f"online-{c.name.split('-', 1)[1] if c.name[:4].isdigit() and '-' in c.name else c.name}", data, units, descriptions=desc, experiment="online",
             excitation={"online_identification_of": c.key, **settings}, sample_rate_hz=c.sample_rate_hz,
-            extra_attrs={"source_run": c.key, "re_n2_pct": json.dumps(scored),
+            extra_attrs={"source_run": c.key, "re_n2_pct": json.dumps(finite_json(scored)),
                          "scored_rows": json.dumps([int(i) for i in _spans(c.rows)])},
         ))
     return names
@@ -259,13 +506,39 @@ def report_lines(doc: dict[str, Any]) -> list[str]:
               "training rows left out"),
              f"{'run':36s} {'re_N2 %':>30s}   {'re_Ninf %':>30s}",
              f"{'':36s} {'online':>9s} {'offline':>9s} {'y(k-1)':>9s}   {'online':>9s} {'offline':>9s} {'y(k-1)':>9s}"]
+    def cell(value: Any, status: str = "ok") -> str:
+        if status == "refused" or value is None:
+            return f"{'refused':>9s}"
+        return f"{value:9.3g}" + ("*" if status == "static-fallback" else "")
+
+    notes: list[str] = []
     for r in doc["runs"]:
         a, b, c = r["online"], r["offline"], r["persistence"]
-        lines.append(f"{r['run'][:36]:36s} {a['re_n2_pct']:9.3g} {b['re_n2_pct']:9.3g} {c['re_n2_pct']:9.3g}   "
-                     f"{a['re_ninf_pct']:9.3g} {b['re_ninf_pct']:9.3g} {c['re_ninf_pct']:9.3g}")
+        st = r.get("offline_check", {}).get("status", "ok")
+        lines.append(f"{r['run'][:36]:36s} {cell(a['re_n2_pct'])} {cell(b['re_n2_pct'], st)} {cell(c['re_n2_pct'])}   "
+                     f"{cell(a['re_ninf_pct'])} {cell(b['re_ninf_pct'], st)} {cell(c['re_ninf_pct'])}")
+        check = r.get("offline_check", {})
+        if st == "static-fallback":
+            notes.append(f"{r['run']}: offline* is the static FPMPI's free run, the Hammerstein model set aside: "
+                         + "; ".join(check.get("reasons", [])))
+        elif st == "refused":
+            notes.append(f"{r['run']}: offline refused, nothing scored: " + "; ".join(check.get("reasons", [])))
+        else:
+            notes.extend(f"{r['run']}: offline: {w}" for w in check.get("warnings", []))
+        vs = r.get("online_vs_persistence", {})
+        if vs.get("verdict") == "worse":
+            notes.append(f"{r['run']}: online {r['online']['re_n2_pct']:.4g} % is worse than y(k-1) "
+                         f"{r['persistence']['re_n2_pct']:.4g} %: " + "; ".join(vs.get("reasons", [])))
     lines.append("online and y(k-1) are one-step-ahead predictions from measured outputs; offline is a free-run "
                  "simulation from the input alone: read online against y(k-1), not only against offline.")
+    lines.extend(notes)
     return lines
+
+
+def _overall_status(statuses: list[str]) -> str:
+    """One word for the offline model over the evaluated runs: ok, static-fallback, refused, or mixed."""
+    kinds = sorted(set(statuses))
+    return kinds[0] if len(kinds) == 1 else "mixed: " + ", ".join(f"{k} {statuses.count(k)}" for k in kinds) if kinds else "ok"
 
 
 # -- the command --------------------------------------------------------------------------------
@@ -353,7 +626,10 @@ def online(
         paths = [Path(p) for p in data]
     dataset = as_dataset(paths)
     runs = dataset.fit_runs()
-    split = assign_roles(runs, train or None, None, train_fraction)
+    keeps, left_out = leading_rests(runs)
+    split = assign_roles(runs, train or None, None, train_fraction, keep=keeps)
+    for line in left_out:
+        note(line)
     if not any(r.validation.any() for r in runs):
         raise UserError(f"no run is left to identify online ({split})", where="--train")
     active = [r for r in runs if len(r.data)]
@@ -375,15 +651,22 @@ def online(
             progress=None if quiet else note)
         source = ("fitted on the training rows, then held; FPMPI " +
                   (f"from {model}" if loaded is not None else "fitted first (spec fpmpi), as 000 sec. 4.1"))
+    # A front end fitted here on the training rows holds its input within their range: beyond it its
+    # polynomial is an extrapolation the identifier would have to unlearn (decision 0083). A loaded
+    # one was fitted on data this command has not seen: its range is unknown, none is imposed.
+    train_u = np.concatenate([np.asarray(r.data.input, float)[m] for r, m in zip(active, masks)])
+    train_u = train_u[np.isfinite(train_u)]
+    fitted_range = (float(train_u.min()), float(train_u.max())) if loaded is None and train_u.size else None
     try:
-        front_end = FPMPIFrontEnd.from_model(front_model)
+        front_end = FPMPIFrontEnd.from_model(front_model, input_range=fitted_range)
     except ValueError as exc:
         raise UserError(str(exc), where=str(model) if model is not None else "--model") from None
     train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
     train_metrics = _pick(metrics(np.concatenate([a for a, _ in train_y]), np.concatenate([b for _, b in train_y])))
 
     comparisons = compare(runs, hammerstein, front_end, M=M, N=N, lam=forgetting, delta=delta,
-                          forgetting=forgetting_kind, settle_s=settle)
+                          forgetting=forgetting_kind, settle_s=settle,
+                          units=(dataset.input_unit, dataset.output_unit))
     settings = {"M": M, "N": N, "lambda": forgetting, "delta": delta, "forgetting": forgetting_kind,
                 "outlier": "huber", "settle_s": settle}
     doc: dict[str, Any] = {
@@ -392,11 +675,17 @@ def online(
         "replay": "each evaluated run is fed to a fresh identifier sample by sample in recorded order "
                   "(block mode: the same kernel as step mode)",
         "split": split,
+        "left_out": left_out,
         "settle_s": settle,
         "offline": {"spec": hammerstein.spec, "source": source, "train": train_metrics,
-                    "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()}},
+                    "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()},
+                    "status": _overall_status([c.offline_check.get("status", "ok") for c in comparisons])},
         "front_end": {"operators": int(front_end.r.size), "exponents": front_end.exps.tolist(),
-                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0])},
+                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0]),
+                      "input_range": list(fitted_range) if fitted_range is not None else None,
+                      "input_range_note": "the identifier's front end holds its input within the training rows' "
+                                          "range (the offline model is simulated without)" if fitted_range else
+                                          "none: the front end was loaded"},
         "online": {**settings, "weights": comparisons[0].weight_names if comparisons else []},
         "comparison": COMPARISON,
         "runs": [c.to_json() for c in comparisons],

@@ -57,6 +57,14 @@ def test_rig_mode_sweeps_then_compares_online_with_offline(live):
             assert set(r[kind]) >= {"re_n2_pct", "re_ninf_pct"} and r[kind]["re_n2_pct"] > 0
         assert r["online"]["re_n2_pct"] < r["offline"]["re_n2_pct"]  # 000 Table 4, rate rows
         assert r["identifier"]["covariance_resets"] == 0 and len(r["weights_final"]) == 9
+        # the checks of decisions 0082-0083: a sound offline model is scored as is; the verdict on
+        # y(k-1) agrees with the figures and carries reasons only when online loses
+        assert r["offline_check"]["status"] == "ok" and r["offline_check"]["reasons"] == []
+        assert r["identifier"]["divergence_resets"] == 0 and r["poles_final"]["max_radius"] <= 0.999
+        vs = r["online_vs_persistence"]
+        assert vs["verdict"] == ("better" if r["online"]["re_n2_pct"] <= r["persistence"]["re_n2_pct"] else "worse")
+        assert bool(vs["reasons"]) == (vs["verdict"] == "worse")
+    assert doc["offline"]["status"] == "ok" and doc["left_out"] == []  # simulated runs: history known
     assert runs[1]["online"]["re_n2_pct"] < runs[1]["persistence"]["re_n2_pct"]  # 5 Hz: more than the lags
     assert png.stat().st_size > 10_000
 
