@@ -17,7 +17,7 @@ hand (the runs named in the model's ``fitted_on``): the model is run on the reco
 the unmodelled lag is the time shift that best maps the model's output onto the measured one
 (least squares on the model output's derivative), and the local gain range is the 5th-95th
 percentile of the measured over the modelled rise on monotone stretches of the model output
-(each 2 % of the span and at least 10 noise sigma long), after that shift, widened to at least 0.8-1.25. Without the
+(each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least 0.8-1.25. Without the
 recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
 design's 6 dB and 45 deg are then the only allowance for what the model misses.
 
@@ -26,14 +26,16 @@ sensor's noise straight into the command, which on a hysteretic actuator starts 
 the inverse's steepest slope every few samples) with the largest integral gain whose loop keeps a
 gain margin of at least 6 dB and a phase margin of at least 45 deg at every gain of the range,
 and whose closed-loop poles lie inside the unit circle at every gain of the range (the unmodelled
-lag rounded up to whole samples). :func:`check` evaluates user gains on the same loop and raises
+lag rounded up to whole samples), crossing over no higher than the training input's excited
+bandwidth (:func:`hilbench.diagnosis.input_motion.excited_bandwidth_hz`): above it the rig's
+dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there. :func:`check` evaluates user gains on the same loop and raises
 :class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -74,7 +76,7 @@ class IdentifiedLoop:
     gain_range: tuple[float, float]
     source: str
     noise_um: float | None = None
-    notes: list[str] = field(default_factory=list)
+    bandwidth_hz: float | None = None
 
     @property
     def has_dynamics(self) -> bool:
@@ -99,7 +101,8 @@ class IdentifiedLoop:
     def describe(self) -> dict[str, Any]:
         return {"local_gain_range": [float(self.gain_range[0]), float(self.gain_range[1])],
                 "model_delay_samples": int(self.delay_samples), "measurement_delay_samples": 1,
-                "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none", "source": self.source, "noise_um": self.noise_um}
+                "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none", "source": self.source, "noise_um": self.noise_um,
+                "identified_up_to_hz": self.bandwidth_hz}
 
 
 # ====================================================================================================
@@ -169,10 +172,10 @@ def _lag_and_gains(y_meas: np.ndarray, y_mod: np.ndarray) -> tuple[float, np.nda
     noise = float(np.std(np.diff(y_meas - shifted, 2)) / math.sqrt(6.0))
     if span <= 0.0:
         return lag, np.zeros(0), noise
-    # a stretch: 2 % of the model's span, and 10 noise sigma on one side at least (the ratio is then
-    # good to ~15 %: the measured rise's noise is sqrt(2) sigma)
+    # a stretch: 2 % of the model's span, and 20 noise sigma on one side at least (the ratio is then
+    # good to ~7 %: the measured rise's noise is sqrt(2) sigma)
     step_um = STRETCH_FRACTION * span
-    floor_um = 10.0 * noise
+    floor_um = 20.0 * noise
     gains = []
     start = 0
     direction = 0.0
@@ -193,6 +196,7 @@ def _lag_and_gains(y_meas: np.ndarray, y_mod: np.ndarray) -> tuple[float, np.nda
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs) tuples; default: the model's training runs."""
+    from hilbench.diagnosis.input_motion import excited_bandwidth_hz
     from hilbench.models import stepping as ST
 
     b, a, d = _model_dynamics(model, fs)
@@ -200,6 +204,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     lags: list[float] = []
     gains: list[np.ndarray] = []
     noises: list[float] = []
+    bands: list[float] = []
     used = 0
     for u, y, aux, run_fs in runs:
         try:
@@ -216,6 +221,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         lags.append(lag / run_fs)
         gains.append(g)
         noises.append(noise)
+        bands.append(excited_bandwidth_hz(u, run_fs))
         used += 1
     allg = np.concatenate(gains) if gains else np.zeros(0)
     if used == 0 or allg.size < 10:
@@ -233,8 +239,8 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     lo, hi = min(lo, MIN_GAIN_BAND[0]), max(hi, MIN_GAIN_BAND[1])
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
-    return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi),
-                          f"training data: {used} run(s), {allg.size} stretches", noise_um=float(np.median(noises)))
+    return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
+                          noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None)
 
 
 # ====================================================================================================
@@ -252,7 +258,7 @@ def _controller_response(pid: PID, fs: float, w: np.ndarray) -> np.ndarray:
 
 
 def _grid(fs: float) -> np.ndarray:
-    return 2.0 * np.pi * np.geomspace(1e-5 * fs, 0.5 * fs * (1 - 1e-9), 6000)
+    return 2.0 * np.pi * np.geomspace(1e-5 * fs, 0.5 * fs, 6000)
 
 
 def margins(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:
@@ -266,7 +272,8 @@ def margins(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:
         mag = np.abs(L)
         ph = np.unwrap(np.angle(L))
         # phase crossings of -180 - 360 k deg: the gain margin is 1/|L| there
-        turns = np.floor((ph + np.pi) / (2 * np.pi))
+        # (a loop that reaches -180 deg exactly at the Nyquist frequency crosses there)
+        turns = np.floor((ph + np.pi * (1 - 1e-9)) / (2 * np.pi))
         for i in np.flatnonzero(np.diff(turns) != 0):
             gm = min(gm, -20.0 * math.log10(max(float(mag[i]), 1e-300)))
         # unit-gain crossings: the phase margin is 180 + phase there (wrapped to (-180, 180])
@@ -283,22 +290,24 @@ def margins(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:
             "stable": bool(radius < 1.0 - 1e-9)}
 
 
-def _meets(m: dict[str, Any]) -> bool:
+def _meets(m: dict[str, Any], loop: IdentifiedLoop) -> bool:
+    # above the training's excited bandwidth the rig's dynamics were never seen: no crossover there
+    cap = loop.bandwidth_hz if loop.bandwidth_hz else math.inf
     return (m["stable"] and m["gain_margin_db"] >= MIN_GAIN_MARGIN_DB
-            and m["phase_margin_deg"] >= MIN_PHASE_MARGIN_DEG)
+            and m["phase_margin_deg"] >= MIN_PHASE_MARGIN_DEG and m["crossover_hz"] <= cap)
 
 
 def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, dict[str, Any]]:
     """The integral-only PID with the largest ki (1/s) meeting the margins over the gain range
     (bisection in log ki: the loop gain scales with ki, the margins fall with it)."""
     lo, hi = 1e-6 * loop.fs, 10.0 * loop.fs
-    if not _meets(margins(PID(0.0, lo, 0.0, i_limit=i_limit), loop)):
+    if not _meets(margins(PID(0.0, lo, 0.0, i_limit=i_limit), loop), loop):
         raise InstabilityError(f"no integral gain down to {lo:.3g} 1/s keeps {MIN_GAIN_MARGIN_DB:g} dB and "
                                f"{MIN_PHASE_MARGIN_DEG:g} deg over the local gain range "
                                f"{loop.gain_range[0]:.3g}-{loop.gain_range[1]:.3g}")
     for _ in range(50):
         mid = math.sqrt(lo * hi)
-        if _meets(margins(PID(0.0, mid, 0.0, i_limit=i_limit), loop)):
+        if _meets(margins(PID(0.0, mid, 0.0, i_limit=i_limit), loop), loop):
             lo = mid
         else:
             hi = mid
