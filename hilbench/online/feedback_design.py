@@ -17,9 +17,10 @@ hand (the runs named in the model's ``fitted_on``): the model is run on the reco
 the unmodelled lag is the time shift that best maps the model's output onto the measured one
 (least squares on the model output's derivative), and the local gain range is the 5th-95th
 percentile of the measured over the modelled rise on monotone stretches of the model output
-(each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least 0.8-1.25. Without the
-recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
-design's 6 dB and 45 deg are then the only allowance for what the model misses.
+(each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least
+0.8-1.25. Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
+design's 6 dB and 45 deg are then the only allowance for what the model misses, and its crossover
+is kept below fs / 100.
 
 :func:`design` picks an integral-only controller (kp = 0: the proportional path would pass the
 sensor's noise straight into the command, which on a hysteretic actuator starts a minor loop at
@@ -54,6 +55,8 @@ MIN_GAIN_BAND = (0.8, 1.25)
 #: monotone stretches of the model output this fraction of its span long give one local gain
 STRETCH_FRACTION = 0.02
 GAIN_PERCENTILES = (5.0, 95.0)
+#: without training data the design crosses over at most at fs / this
+NO_DATA_BANDWIDTH_DIVISOR = 100.0
 #: gains evaluated across the range (geometric)
 GAIN_POINTS = 9
 
@@ -226,9 +229,12 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     allg = np.concatenate(gains) if gains else np.zeros(0)
     if used == 0 or allg.size < 10:
         # nothing measured: the model's own loop (unit gain, its dynamics and delay); the design's
-        # 6 dB and 45 deg are then the only allowance for what the model misses
+        # 6 dB and 45 deg are then the only allowance for what the model misses, and it crosses
+        # over no higher than fs / 100 (nothing says where the rig's own dynamics start)
         return IdentifiedLoop(fs, b, a, d, 0.0, (1.0, 1.0),
-                              "the model only (no training data at hand): unit local gain, no unmodelled lag")
+                              "the model only (no training data at hand): unit local gain, no unmodelled lag, "
+                              f"crossover at most fs/{NO_DATA_BANDWIDTH_DIVISOR:g}",
+                              bandwidth_hz=fs / NO_DATA_BANDWIDTH_DIVISOR)
     lo, hi = (float(np.percentile(allg, p)) for p in GAIN_PERCENTILES)
     if not lo > 0.0:
         raise InstabilityError(

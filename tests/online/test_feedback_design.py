@@ -90,6 +90,15 @@ def test_given_gains_are_checked_on_the_identified_loop() -> None:
         FD.check(PID(0.2, 300.0), lagged)
 
 
+def test_without_training_data_the_design_is_on_the_models_loop_and_slow() -> None:
+    comp = Compensator(_pi_model(), FS, (-1.0, 1.0), feedback=True)
+    doc = comp.describe()["feedback"]
+    assert doc["designed"] and doc["loop"]["source"].startswith("the model only")
+    assert doc["loop"]["local_gain_range"] == [1.0, 1.0]
+    assert 0.0 < doc["margins"]["crossover_hz"] <= FS / FD.NO_DATA_BANDWIDTH_DIVISOR * 1.01
+    assert doc["margins"]["gain_margin_db"] >= FD.MIN_GAIN_MARGIN_DB
+
+
 def test_a_local_gain_of_either_sign_is_refused() -> None:
     model = _pi_model()
     t = np.arange(4000) / FS
