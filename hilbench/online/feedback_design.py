@@ -29,7 +29,9 @@ gain margin of at least 6 dB and a phase margin of at least 45 deg at every gain
 and whose closed-loop poles lie inside the unit circle at every gain of the range (the unmodelled
 lag rounded up to whole samples), crossing over no higher than the training input's excited
 bandwidth (:func:`hilbench.diagnosis.input_motion.excited_bandwidth_hz`): above it the rig's
-dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there. :func:`check` evaluates user gains on the same loop and raises
+dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there.
+Where the model's training error is near the sensor's noise, the gain is lowered until the noise
+it feeds back adds at most a quarter of the model's error power (:func:`noise_budget_ki`). :func:`check` evaluates user gains on the same loop and raises
 :class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
 """
 
@@ -44,7 +46,7 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.online.pid import PID
 
-__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check",
+__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "noise_budget_ki",
            "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
 
 #: design targets over the whole local-gain range
@@ -55,6 +57,8 @@ MIN_GAIN_BAND = (0.8, 1.25)
 #: monotone stretches of the model output this fraction of its span long give one local gain
 STRETCH_FRACTION = 0.02
 GAIN_PERCENTILES = (5.0, 95.0)
+#: the fed-back noise may add at most this fraction of the model's own error power
+NOISE_BUDGET = 0.25
 #: without training data the design crosses over at most at fs / this
 NO_DATA_BANDWIDTH_DIVISOR = 100.0
 #: gains evaluated across the range (geometric)
@@ -80,6 +84,7 @@ class IdentifiedLoop:
     source: str
     noise_um: float | None = None
     bandwidth_hz: float | None = None
+    residual_um: float | None = None  # rms of measured - model over the training runs
 
     @property
     def has_dynamics(self) -> bool:
@@ -105,7 +110,7 @@ class IdentifiedLoop:
         return {"local_gain_range": [float(self.gain_range[0]), float(self.gain_range[1])],
                 "model_delay_samples": int(self.delay_samples), "measurement_delay_samples": 1,
                 "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none", "source": self.source, "noise_um": self.noise_um,
-                "identified_up_to_hz": self.bandwidth_hz}
+                "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um}
 
 
 # ====================================================================================================
@@ -127,8 +132,8 @@ def _model_dynamics(model: Any, fs: float) -> tuple[np.ndarray, np.ndarray, int]
 
 
 def _training_runs(model: Any) -> list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], float]]:
-    """(input, output, aux, fs) of the runs the model was fitted on, the part that trained it
-    (first 70 % unless the split names runs), when the files are at hand."""
+    """(input, output, aux, fs, n_train) of the runs the model was fitted on, in order, when the
+    files are at hand; the first n_train samples trained it (70 % unless the split names runs)."""
     from hilbench.recording.hdf5 import Recording
 
     runs = []
@@ -142,9 +147,9 @@ def _training_runs(model: Any) -> list[tuple[np.ndarray, np.ndarray, dict[str, n
         except Exception:  # noqa: BLE001  (a moved or unreadable file: fall back to assumptions)
             continue
         n = int(fraction * data["input"].size)
-        aux = {k: np.asarray(v[:n], float) for k, v in data.items() if k not in ("time", "input", "output")}
-        runs.append((np.asarray(data["input"][:n], float), np.asarray(data["output"][:n], float), aux,
-                     float(run.sample_rate_hz)))
+        aux = {k: np.asarray(v, float) for k, v in data.items() if k not in ("time", "input", "output")}
+        runs.append((np.asarray(data["input"], float), np.asarray(data["output"], float), aux,
+                     float(run.sample_rate_hz), n))
     return runs
 
 
@@ -198,7 +203,8 @@ def _lag_and_gains(y_meas: np.ndarray, y_mod: np.ndarray) -> tuple[float, np.nda
 
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
-    docstring). ``runs``: (input, output, aux, fs) tuples; default: the model's training runs."""
+    docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
+    model's training runs."""
     from hilbench.diagnosis.input_motion import excited_bandwidth_hz
     from hilbench.models import stepping as ST
 
@@ -208,12 +214,22 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     gains: list[np.ndarray] = []
     noises: list[float] = []
     bands: list[float] = []
+    squares: list[float] = []
+    counts: list[int] = []
     used = 0
-    for u, y, aux, run_fs in runs:
+    compiled: dict[float, Any] = {}
+    for run in runs:
+        u, y, aux, run_fs = run[:4]
+        n_train = run[4] if len(run) > 4 else u.size
         try:
-            y_mod = ST.compile_model(model, run_fs).block(u, aux or None)
+            # one model memory through the runs in order, as the fit ran them: a run starts where
+            # the last one left the actuator, not from a virgin state
+            if run_fs not in compiled:
+                compiled[run_fs] = ST.compile_model(model, run_fs)
+            y_mod = compiled[run_fs].block(u, aux or None)
         except Exception:  # noqa: BLE001  (a model that cannot run on the record: not evidence)
             continue
+        u, y, y_mod = u[:n_train], y[:n_train], np.asarray(y_mod, float)[:n_train]
         got = _lag_and_gains(y, np.asarray(y_mod, float))
         if got is None:
             continue
@@ -225,6 +241,9 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         gains.append(g)
         noises.append(noise)
         bands.append(excited_bandwidth_hz(u, run_fs))
+        r = (y - y_mod)[np.isfinite(y) & np.isfinite(y_mod)]
+        squares.append(float(np.sum(r * r)))
+        counts.append(int(r.size))
         used += 1
     allg = np.concatenate(gains) if gains else np.zeros(0)
     if used == 0 or allg.size < 10:
@@ -246,7 +265,8 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
-                          noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None)
+                          noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
+                          residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)))
 
 
 # ====================================================================================================
@@ -305,7 +325,8 @@ def _meets(m: dict[str, Any], loop: IdentifiedLoop) -> bool:
 
 def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, dict[str, Any]]:
     """The integral-only PID with the largest ki (1/s) meeting the margins over the gain range
-    (bisection in log ki: the loop gain scales with ki, the margins fall with it)."""
+    (bisection in log ki: the loop gain scales with ki, the margins fall with it), lowered to
+    :func:`noise_budget_ki` where the model's error is near the sensor's noise."""
     lo, hi = 1e-6 * loop.fs, 10.0 * loop.fs
     if not _meets(margins(PID(0.0, lo, 0.0, i_limit=i_limit), loop), loop):
         raise InstabilityError(f"no integral gain down to {lo:.3g} 1/s keeps {MIN_GAIN_MARGIN_DB:g} dB and "
@@ -319,8 +340,34 @@ def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, 
             hi = mid
         if hi / lo < 1.01:
             break
-    pid = PID(0.0, lo, 0.0, i_limit=i_limit, reversal_guard=True)
-    return pid, margins(pid, loop)
+    ki = lo
+    m_max = margins(PID(0.0, ki, 0.0), loop)
+    budget = noise_budget_ki(loop)
+    if budget is not None and budget < ki:
+        ki = max(budget, 1e-6 * loop.fs)
+    pid = PID(0.0, ki, 0.0, i_limit=i_limit, reversal_guard=True)
+    m = margins(pid, loop)
+    m["ki_max_per_s"] = float(lo)
+    m["crossover_max_hz"] = m_max["crossover_hz"]
+    m["noise_limited"] = bool(ki < lo)
+    return pid, m
+
+
+def noise_budget_ki(loop: IdentifiedLoop) -> float | None:
+    """The integral gain (1/s) whose fed-back sensor noise adds at most NOISE_BUDGET of the model's
+    own error power to the measured error (None without training data).
+
+    An integrator of k = g ki / fs per sample, one sample late, passes white noise of variance
+    sigma^2 to the measured error with variance sigma^2 (1 + k / (2 - k)); what it can remove is
+    the model's error, E^2 = (training rms error)^2 - sigma^2. Where the model is already at the
+    sensor's noise floor, E is small and so is the gain: feedback has nothing to remove there and
+    would only add noise."""
+    if loop.residual_um is None or loop.noise_um is None or not loop.noise_um > 0.0:
+        return None
+    e2 = max(loop.residual_um ** 2 - loop.noise_um ** 2, 0.0)
+    budget = NOISE_BUDGET * e2
+    k = 2.0 * budget / (loop.noise_um ** 2 + budget)
+    return k * loop.fs / loop.gain_range[1]
 
 
 def check(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:

@@ -488,6 +488,11 @@ class Compensator:
             f"kd {self.pid.kd:.4g} s (um/um); gain margin {m['gain_margin_db']:.3g} dB, phase margin "
             f"{m['phase_margin_deg']:.3g} deg, crossover {m['crossover_hz']:.3g} Hz over local gains "
             f"{lo:.3g}-{hi:.3g}, unmodelled lag {loop.lag_s * 1e3:.3g} ms ({loop.source})")
+        if m.get("noise_limited"):
+            self.notes.append(
+                f"feedback gain lowered from ki {m['ki_max_per_s']:.4g} 1/s: the model's training error "
+                f"({loop.residual_um:.3g} um rms) is near the sensor's noise ({loop.noise_um:.3g} um): "
+                "more gain would feed back more noise than there is model error to remove")
 
     def _slope0(self) -> float:
         lo, hi = self.limits

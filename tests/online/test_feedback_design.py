@@ -99,6 +99,21 @@ def test_without_training_data_the_design_is_on_the_models_loop_and_slow() -> No
     assert doc["margins"]["gain_margin_db"] >= FD.MIN_GAIN_MARGIN_DB
 
 
+def test_a_model_at_the_noise_floor_gets_a_small_gain() -> None:
+    """The fed-back noise (sigma^2 k / (2 - k)) may add a quarter of the model's error power."""
+    loop = FD.IdentifiedLoop(FS, np.ones(1), np.ones(1), 0, 0.0, (0.8, 1.25), "test", noise_um=0.02,
+                             bandwidth_hz=50.0, residual_um=0.0201)
+    ki = FD.noise_budget_ki(loop)
+    k = ki * 1.25 / FS
+    added = 0.02 ** 2 * k / (2 - k)
+    assert added == pytest.approx(FD.NOISE_BUDGET * (0.0201 ** 2 - 0.02 ** 2), rel=1e-9)
+    pid, m = FD.design(loop)
+    assert pid.ki == pytest.approx(ki) and m["noise_limited"] and m["ki_max_per_s"] > 10 * ki
+    loop.residual_um = 0.5  # a model error well above the noise: the margins decide
+    pid, m = FD.design(loop)
+    assert not m["noise_limited"] and pid.ki == m["ki_max_per_s"]
+
+
 def test_a_local_gain_of_either_sign_is_refused() -> None:
     model = _pi_model()
     t = np.arange(4000) / FS
@@ -190,6 +205,22 @@ sweep = { frequency_hz = [1.0, 5.0] }
 """
 
 
+DEMO = """
+[rig]
+name = "piezo-demo-short"
+extends = "piezo-demo"
+
+[[plan.runs]]
+label = "sine"
+kind = "sine"
+offset = 50.0
+phase_deg = -90.0
+frequency_hz = 1.0
+cycles = 4
+sweep = { amplitude = [20.0, 50.0] }
+"""
+
+
 def _sweep_and_fit(folder: Path, name: str, text: str, spec: str) -> tuple[Path, Model, str]:
     """The rig swept with its plan, the model fitted, and a 1 Hz sine over 80 % of the recorded
     output range as the reference."""
@@ -214,7 +245,8 @@ def _sweep_and_fit(folder: Path, name: str, text: str, spec: str) -> tuple[Path,
 @pytest.fixture(scope="module")
 def rigs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Model, str]]:
     folder = tmp_path_factory.mktemp("feedback-design")
-    return {"rate": _sweep_and_fit(folder, "rate", RATE, "pi1"), "fpmpi": _sweep_and_fit(folder, "fpmpi", FPMPI, "fpmpi")}
+    return {"rate": _sweep_and_fit(folder, "rate", RATE, "pi1"), "fpmpi": _sweep_and_fit(folder, "fpmpi", FPMPI, "fpmpi"),
+            "demo": _sweep_and_fit(folder, "demo", DEMO, "pi+asymmetry+temperature")}
 
 
 def _margins_hold(compensator: dict) -> None:
@@ -255,6 +287,21 @@ def test_gmm_fpmpi_designed_feedback_is_not_worse_and_the_default_gains_are_refu
     assert fb <= ff
     with pytest.raises(InstabilityError, match="pole"):
         track(rig, model, reference, feedback=PID())
+
+
+def test_piezo_demo_feedback_at_the_noise_floor_is_not_worse(rigs: dict) -> None:
+    """The right model leaves the sensor's noise: feedback has nothing to remove and lowers its gain
+    (on the rig's full plan, the margins' gain alone, 155 1/s, was 3.6 % above feedforward)."""
+    rig, model, reference = rigs["demo"]
+    ff = track(rig, model, reference).metrics["erms_pct"]
+    designed = track(rig, model, reference, feedback=True)
+    fb = designed.metrics["erms_pct"]
+    m = designed.compensator["checks"]["closed_loop"]
+    print(f"\npiezo-demo erms_pct: feedforward {ff:.4f}, designed {fb:.4f} (ki {m['ki_max_per_s']:.4g} -> "
+          f"{designed.compensator['feedback']['ki_per_s']:.4g} 1/s)")
+    _margins_hold(designed.compensator)
+    assert m["noise_limited"]
+    assert fb <= ff
 
 
 # ==================================================================================================
