@@ -31,7 +31,8 @@ lag rounded up to whole samples), crossing over no higher than the training inpu
 bandwidth (:func:`hilbench.diagnosis.input_motion.excited_bandwidth_hz`): above it the rig's
 dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there.
 Where the model's training error is near the sensor's noise, the gain is lowered until the noise
-it feeds back adds at most a quarter of the model's error power (:func:`noise_budget_ki`). :func:`check` evaluates user gains on the same loop and raises
+it feeds back adds at most a quarter of the model's error power (:func:`noise_budget_ki`).
+:func:`check` evaluates user gains on the same loop and raises
 :class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
 """
 
@@ -109,7 +110,8 @@ class IdentifiedLoop:
     def describe(self) -> dict[str, Any]:
         return {"local_gain_range": [float(self.gain_range[0]), float(self.gain_range[1])],
                 "model_delay_samples": int(self.delay_samples), "measurement_delay_samples": 1,
-                "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none", "source": self.source, "noise_um": self.noise_um,
+                "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none",
+                "source": self.source, "noise_um": self.noise_um,
                 "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um}
 
 

@@ -62,7 +62,9 @@ that loop from the model's training data; ``feedback=True`` designs the gains on
 closed-loop pole leaves the unit circle at any gain of the range. Derivative on the measurement
 with a first-order filter; anti-windup by conditional integration (no integration while the
 applied command differs from the command, at a limit or at the slew rate, in the direction the
-error pushes) and a clamped integrator.
+error pushes) and a clamped integrator. The reversal guard (``PID.reversal_guard``, on by default)
+holds the command rather than move it against the reference's direction, so feedback adds no
+reversals (decision 0080); a held command counts as a limit for the integrator.
 
 Online adaptation (optional, paper 000): an :class:`hilbench.online.oiir.OIIR` identifier with the
 model's FPMPI front end is updated every sample with (applied command, measured output); its
@@ -89,8 +91,6 @@ from hilbench.online.feedback_design import InstabilityError
 from hilbench.online.pid import PID
 
 __all__ = ["Compensator", "PID", "InstabilityError", "inverse_pi_parameters"]
-
-
 
 
 def inverse_pi_parameters(p0: float, s: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -166,9 +166,9 @@ class Compensator:
     asks for more. ``method``: ``auto`` (pi -> ``pi``, pmpi -> ``im``, mpi / pi+asymmetry -> ``mpi``,
     fpmpi -> ``fpmpi``, anything else -> ``general``) or a kind name. ``gain`` is eq. 20's k_e
     (``"auto"``, a number, or None: refuse when eq. 16 fails). ``iterations``: I-M passes per
-    sample. ``feedback``: True (gains designed from the identified loop) or a :class:`PID` (checked on
-    it). ``online``: True or a
-    dict of :class:`hilbench.online.oiir.OIIR` options (``M``, ``N``, ``bias``, ``lam``, ...).
+    sample. ``feedback``: True (gains designed from the identified loop) or a :class:`PID` (checked
+    on it). ``online``: True or a dict of :class:`hilbench.online.oiir.OIIR` options (``M``, ``N``,
+    ``bias``, ``lam``, ...).
     """
 
     def __init__(

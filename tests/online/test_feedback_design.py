@@ -245,7 +245,8 @@ def _sweep_and_fit(folder: Path, name: str, text: str, spec: str) -> tuple[Path,
 @pytest.fixture(scope="module")
 def rigs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[Path, Model, str]]:
     folder = tmp_path_factory.mktemp("feedback-design")
-    return {"rate": _sweep_and_fit(folder, "rate", RATE, "pi1"), "fpmpi": _sweep_and_fit(folder, "fpmpi", FPMPI, "fpmpi"),
+    return {"rate": _sweep_and_fit(folder, "rate", RATE, "pi1"),
+            "fpmpi": _sweep_and_fit(folder, "fpmpi", FPMPI, "fpmpi"),
             "demo": _sweep_and_fit(folder, "demo", DEMO, "pi+asymmetry+temperature")}
 
 
