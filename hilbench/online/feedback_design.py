@@ -18,7 +18,8 @@ the unmodelled lag is the time shift that best maps the model's output onto the 
 (least squares on the model output's derivative), and the local gain range is the 5th-95th
 percentile of the measured over the modelled rise on monotone stretches of the model output
 (each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least
-0.8-1.25. Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
+0.8-1.25, its lower end at least a tenth of the median; more than a quarter of the stretches
+moving against the model is refused. Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
 design's 6 dB and 45 deg are then the only allowance for what the model misses, and its crossover
 is kept below fs / 100.
 
@@ -58,6 +59,10 @@ MIN_GAIN_BAND = (0.8, 1.25)
 #: monotone stretches of the model output this fraction of its span long give one local gain
 STRETCH_FRACTION = 0.02
 GAIN_PERCENTILES = (5.0, 95.0)
+#: refused above this fraction of stretches where the rig moves against the model
+MAX_NEGATIVE_FRACTION = 0.25
+#: the local gain's lower end is at least this fraction of its median
+GAIN_FLOOR = 0.1
 #: the fed-back noise may add at most this fraction of the model's own error power
 NOISE_BUDGET = 0.25
 #: without training data the design crosses over at most at fs / this
@@ -257,12 +262,17 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
                               f"crossover at most fs/{NO_DATA_BANDWIDTH_DIVISOR:g}",
                               bandwidth_hz=fs / NO_DATA_BANDWIDTH_DIVISOR)
     lo, hi = (float(np.percentile(allg, p)) for p in GAIN_PERCENTILES)
-    if not lo > 0.0:
+    negative = float(np.mean(allg <= 0.0))
+    median = float(np.median(allg))
+    if negative > MAX_NEGATIVE_FRACTION or not median > 0.0:
         raise InstabilityError(
             f"the rig's local gain over the model's ({GAIN_PERCENTILES[0]:g}th-{GAIN_PERCENTILES[1]:g}th percentile "
-            f"over the model's training runs) ranges from {lo:.3g} to {hi:.3g}: where it is negative the rig moves "
-            "against the model, and no output-domain feedback is stable on both signs",
-            hint="fit a model that follows the rig (hilbench diagnose), then add feedback")
+            f"over the model's training runs) ranges from {lo:.3g} to {hi:.3g}, negative on {100 * negative:.0f} % of "
+            "the stretches: there the rig moves against the model, and no output-domain feedback is stable on both "
+            "signs", hint="fit a model that follows the rig (hilbench diagnose), then add feedback")
+    # a few stretches against the model (at reversals, where a lag is not a pure shift) are not the
+    # rig's gain: the lower end only slows an integrator down, it does not destabilise it
+    lo = max(lo, GAIN_FLOOR * median)
     lo, hi = min(lo, MIN_GAIN_BAND[0]), max(hi, MIN_GAIN_BAND[1])
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)

@@ -13,9 +13,9 @@ import numpy as np
 class PID:
     """Feedback in the output domain (um in, um out): ``kp`` (1), ``ki`` (1/s), ``kd`` (s),
     derivative filter ``tf_s`` (s; default 4 sample periods), integrator clamp ``i_limit`` (um;
-    default: the reference's span). ``reversal_guard`` (on by default): the command never moves against the
-    reference's direction (feedback adds no reversals; see
-    :func:`hilbench.online.inverse_kernels.comp_step`).
+    default: the reference's span). ``reversal_guard`` (on by default): the command never moves
+    against the reference's direction, so feedback adds no reversals (see
+    :func:`hilbench.online.inverse_kernels.comp_step`, decision 0080).
 
     The defaults (kp 0.2, ki 300 1/s) suit the piezo-pmpi stage only; ``Compensator(feedback=True)``
     designs gains from the identified loop (:mod:`hilbench.online.feedback_design`)."""
