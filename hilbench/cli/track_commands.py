@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from hilbench.cli.app import app, default_output, print_json, user_errors
+from hilbench.errors import UserError
 
 
 @app.command()
@@ -21,10 +22,15 @@ def track(
         "'sine:amplitude=50,offset=50,frequency_hz=1,phase_deg=-90,cycles=5', attenuated-triangle, multitone, "
         "step; or FILE.h5:RUN (that run's output channel).",
     ),
-    feedback: bool = typer.Option(False, "--feedback", help="Add PID feedback (output domain) around the inverse."),
-    kp: float = typer.Option(0.2, "--kp", help="PID proportional gain (1), with --feedback."),
-    ki: float = typer.Option(300.0, "--ki", help="PID integral gain (1/s), with --feedback."),
-    kd: float = typer.Option(0.0, "--kd", help="PID derivative gain (s, on the measurement), with --feedback."),
+    feedback: bool = typer.Option(False, "--feedback", help="Add PID feedback around the inverse, in the output "
+                                  "domain (um of error in, um added to the reference out). Without --kp/--ki/--kd "
+                                  "the gains are designed from the identified loop (6 dB, 45 deg over the rig's "
+                                  "local gain range); the margins are reported."),
+    kp: Optional[float] = typer.Option(None, "--kp", help="PID proportional gain (um/um), with --feedback; given "
+                                       "gains are checked on the identified loop and refused when unstable."),
+    ki: Optional[float] = typer.Option(None, "--ki", help="PID integral gain (um/um per s = 1/s), with --feedback."),
+    kd: Optional[float] = typer.Option(None, "--kd", help="PID derivative gain (um/um times s = s, on the "
+                                       "measurement), with --feedback."),
     online: bool = typer.Option(False, "--online", help="Adapt the inverse online with the OIIR identifier "
                                 "(paper 000; needs an fpmpi model)."),
     method: str = typer.Option("auto", "--method", help="Inverse: auto, pi, mpi, im (004 eq. 13), fpmpi, general."),
@@ -43,7 +49,7 @@ def track(
     adaptation; record it and report the tracking error (um; *_pct in percent of the reference).
 
     A configuration that cannot be stable (004 eq. 16 violated with no gain, PID gains that
-    destabilise the loop), a model that cannot be inverted over its operating range and a reference
+    destabilise the identified loop), a model that cannot be inverted over its operating range and a reference
     outside the reachable output range (unless --allow-clip) are refused before anything moves
     (exit 2). The run's health (samples at a limit, slew-limited, error against the model's own) is
     reported; --strict makes a degraded run exit with status 3.
@@ -54,10 +60,15 @@ def track(
     from hilbench.rig.config import load_rig
     from hilbench.rig.rig import Rig
 
+    given = (kp, ki, kd) != (None, None, None)
+    if given and not feedback:
+        raise UserError("--kp/--ki/--kd are the feedback's gains", hint="add --feedback")
+    # gains given: those (a missing one is 0), checked on the identified loop; none: designed on it
+    pid = PID(kp or 0.0, ki or 0.0, kd or 0.0) if given else (True if feedback else None)
     config = load_rig(rig)
     out = output or default_output(f"{config.name}-track")
     with Rig(config) as opened:
-        result = run_track(opened, model, reference, feedback=PID(kp, ki, kd) if feedback else None,
+        result = run_track(opened, model, reference, feedback=pid,
                            online=True if online else None, output=out, label=label, method=method,
                            allow_clip=allow_clip)
         try:
@@ -82,6 +93,13 @@ def track(
         c = result.reference_clipped
         typer.echo(f"  reference clipped: {c['samples']} samples ({c['share_pct']:.3g} %) to the reachable "
                    f"[{c['reachable_um'][0]:.4g}, {c['reachable_um'][1]:.4g}] um")
+    fb = result.compensator.get("feedback")
+    if fb and fb.get("margins"):
+        mg, lp = fb["margins"], fb["loop"]
+        typer.echo(f"  feedback ({'designed' if fb['designed'] else 'given'}, um/um): kp {fb['kp']:.4g}, "
+                   f"ki {fb['ki_per_s']:.4g} 1/s, kd {fb['kd_s']:.4g} s; gain margin {mg['gain_margin_db']:.3g} dB, "
+                   f"phase margin {mg['phase_margin_deg']:.3g} deg, crossover {mg['crossover_hz']:.3g} Hz over local "
+                   f"gains {lp['local_gain_range'][0]:.3g}-{lp['local_gain_range'][1]:.3g}")
     for note in result.compensator.get("notes", []):
         typer.echo(f"  note: {note}")
     if plot_png is not None:

@@ -53,12 +53,18 @@ Dynamics and delay: the compensator inverts the static part (its copy of the mod
 feed-forward pre-filter of the reference only when ``B`` is minimum phase (zeros inside the unit
 circle with a margin, ``b0 != 0``); otherwise, and for the delay, it is left to feedback.
 
-Feedback (optional): a PID in the output domain (um), added to the reference before the inverse,
-so the PID sees the linearised plant (unit gain, the model's dynamics, one sample of measurement
-delay). Derivative on the measurement with a first-order filter; anti-windup by conditional
-integration (no integration while the command is saturated in the direction the error pushes)
-and a clamped integrator. Gains that destabilise the declared dynamics are refused before the loop
-starts (closed-loop poles of ``1 + z^-1 G(z) C(z)``).
+Feedback (optional): a PID in the output domain (um of error in, um added to the reference out,
+before the inverse), so the PID sees the compensated plant: the rig after the inverse, whose local
+gain is the rig's over the model's slope, with the model's dynamics and delay, one sample of
+measurement delay and the lag the model misses. :mod:`hilbench.online.feedback_design` identifies
+that loop from the model's training data; ``feedback=True`` designs the gains on it (margins of
+6 dB and 45 deg over the whole local-gain range), a :class:`PID` is checked on it and refused when a
+closed-loop pole leaves the unit circle at any gain of the range. Derivative on the measurement
+with a first-order filter; anti-windup by conditional integration (no integration while the
+applied command differs from the command, at a limit or at the slew rate, in the direction the
+error pushes) and a clamped integrator. The reversal guard (``PID.reversal_guard``, on by default)
+holds the command rather than move it against the reference's direction, so feedback adds no
+reversals (decision 0080); a held command counts as a limit for the integrator.
 
 Online adaptation (optional, paper 000): an :class:`hilbench.online.oiir.OIIR` identifier with the
 model's FPMPI front end is updated every sample with (applied command, measured output); its
@@ -79,15 +85,13 @@ import numpy as np
 
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
+from hilbench.online import feedback_design as FD
 from hilbench.online import inverse_kernels as K
 from hilbench.online.operating_range import operating_range
+from hilbench.online.feedback_design import InstabilityError
 from hilbench.online.pid import PID
 
 __all__ = ["Compensator", "PID", "InstabilityError", "inverse_pi_parameters"]
-
-
-class InstabilityError(UserError):
-    """A compensator or feedback configuration that cannot be stable; refused before the loop starts."""
 
 
 def inverse_pi_parameters(p0: float, s: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -163,8 +167,9 @@ class Compensator:
     asks for more. ``method``: ``auto`` (pi -> ``pi``, pmpi -> ``im``, mpi / pi+asymmetry -> ``mpi``,
     fpmpi -> ``fpmpi``, anything else -> ``general``) or a kind name. ``gain`` is eq. 20's k_e
     (``"auto"``, a number, or None: refuse when eq. 16 fails). ``iterations``: I-M passes per
-    sample. ``feedback``: a :class:`PID` (or True for the default gains). ``online``: True or a
-    dict of :class:`hilbench.online.oiir.OIIR` options (``M``, ``N``, ``bias``, ``lam``, ...).
+    sample. ``feedback``: True (gains designed from the identified loop) or a :class:`PID` (checked
+    on it). ``online``: True or a dict of :class:`hilbench.online.oiir.OIIR` options (``M``, ``N``,
+    ``bias``, ``lam``, ...).
     """
 
     def __init__(
@@ -334,9 +339,12 @@ class Compensator:
         span_u = hi - lo
         cp[K.C_TOLU] = 1e-12 * span_u
         # -- PID ------------------------------------------------------------------------------------------
-        if feedback is True:
-            feedback = PID()
-        self.pid: PID | None = feedback or None
+        # True: gains designed from the identified loop; a PID: its gains checked on that loop
+        self.loop: FD.IdentifiedLoop | None = None
+        self.margins: dict[str, Any] | None = None
+        self.pid: PID | None = None
+        if feedback is True or isinstance(feedback, PID):
+            self._feedback(feedback)
         cp[K.C_T] = 1.0 / self.fs
         if self.pid is not None:
             ci[K.CI_PID] = 1
@@ -345,7 +353,7 @@ class Compensator:
             cp[K.C_KD] = self.pid.kd
             cp[K.C_TF] = self.pid.tf_s if self.pid.tf_s is not None else 4.0 / self.fs
             cp[K.C_ILIM] = self.pid.i_limit if self.pid.i_limit is not None else (reference_span or 1e300)
-            self._check_pid()
+            cp[K.C_GUARD] = 1.0 if self.pid.reversal_guard else 0.0
         # -- online adaptation ------------------------------------------------------------------------------
         self.oiir = None
         if online:
@@ -478,22 +486,31 @@ class Compensator:
                               if p0 <= worst else f"eq. 20 gain k_e = {ke:.4g} applied")
         return ke
 
-    def _check_pid(self) -> None:
-        b, a = self.dynamics if self.dynamics is not None else (np.ones(1), np.ones(1))
-        delay = self.model.effect("delay")
-        if delay is not None:
-            d = int(round(delay.param("seconds") * self.fs))
-            b = np.concatenate([np.zeros(d), b])
-        poles = self.pid.poles(self.fs, b, a)
-        radius = float(np.max(np.abs(poles), initial=0.0))
-        self.checks["closed_loop"] = {"max_pole_radius": radius, "stable": bool(radius < 1.0 - 1e-9),
-                                      "dynamics": "model" if self.dynamics is not None else "none (unit gain)"}
-        if not radius < 1.0 - 1e-9:
-            what = "the model's dynamics" if self.dynamics is not None else "the compensated (unit-gain) plant"
-            raise InstabilityError(
-                f"PID kp={self.pid.kp:g}, ki={self.pid.ki:g} 1/s, kd={self.pid.kd:g} s destabilise the loop with "
-                f"{what} and one sample of measurement delay: closed-loop pole at |z| = {radius:.4g} >= 1",
-                hint="lower the gains (ki/fs < 1 and kp < 1 keep a unit-gain plant stable)")
+    def _feedback(self, feedback: PID | bool) -> None:
+        """Design (True) or check (a PID) the output-domain feedback on the identified loop
+        (:mod:`hilbench.online.feedback_design`); the margins go into checks and notes."""
+        self.loop = loop = FD.identify_loop(self.model, self.fs)
+        designed = feedback is True
+        if designed:
+            self.pid, self.margins = FD.design(loop)
+        else:
+            self.pid = feedback  # type: ignore[assignment]
+            self.margins = FD.check(self.pid, loop)
+        m = self.margins
+        lo, hi = loop.gain_range
+        self.checks["closed_loop"] = {**{k: (float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                                             else v) for k, v in m.items()},
+                                      "designed": designed, "loop": loop.describe()}
+        self.notes.append(
+            f"feedback {'designed' if designed else 'given'}: kp {self.pid.kp:.4g}, ki {self.pid.ki:.4g} 1/s, "
+            f"kd {self.pid.kd:.4g} s (um/um); gain margin {m['gain_margin_db']:.3g} dB, phase margin "
+            f"{m['phase_margin_deg']:.3g} deg, crossover {m['crossover_hz']:.3g} Hz over local gains "
+            f"{lo:.3g}-{hi:.3g}, unmodelled lag {loop.lag_s * 1e3:.3g} ms ({loop.source})")
+        if m.get("noise_limited"):
+            self.notes.append(
+                f"feedback gain lowered from ki {m['ki_max_per_s']:.4g} 1/s: the model's training error "
+                f"({loop.residual_um:.3g} um rms) is near the sensor's noise ({loop.noise_um:.3g} um): "
+                "more gain would feed back more noise than there is model error to remove")
 
     def _range_notes(self, kind: str) -> None:
         r, u = self.range, self.unit
@@ -545,6 +562,7 @@ class Compensator:
         self.CX[K.S_SLOPE] = self.CP[K.C_SLOPE0]
         self.CX[K.S_GAIN] = 1.0
         self.CX[K.S_YPREV] = math.nan
+        self.CX[K.S_RPREV] = math.nan
         if self.oiir is not None:
             self.oiir.reset()
         self._aux = np.zeros(max(len(self.channels), 1))
@@ -629,6 +647,7 @@ class Compensator:
         return {"samples": int(self.CX[K.S_NOBS]), "solver_evaluations": int(self.CX[K.S_EVALS]),
                 "limited_samples": int(self.CX[K.S_SATN]), "references_held": int(self.CX[K.S_HELD]),
                 "analytic_inverse_corrected": int(self.CX[K.S_FIXED]), "newton_samples": int(self.CX[K.S_NEWTON]),
+                "reversals_held": int(self.CX[K.S_GUARDN]),
                 "gain": float(self.CX[K.S_GAIN]), "offset_um": float(self.CX[K.S_BIAS])}
 
     def describe(self) -> dict[str, Any]:
@@ -639,7 +658,13 @@ class Compensator:
         if self.kind == "im":
             doc["iterations_per_sample"] = int(self.CI[K.CI_IMIT])
         if self.pid is not None:
-            doc["feedback"] = {"kp": self.pid.kp, "ki_per_s": self.pid.ki, "kd_s": self.pid.kd}
+            doc["feedback"] = {"kp": self.pid.kp, "ki_per_s": self.pid.ki, "kd_s": self.pid.kd,
+                               "units": "output domain: um of error in, um added to the reference out",
+                               "designed": bool(self.checks.get("closed_loop", {}).get("designed", False)),
+                               "margins": {k: self.margins[k] for k in ("gain_margin_db", "phase_margin_deg",
+                                                                        "crossover_hz", "max_pole_radius")}
+                               if self.margins else None,
+                               "loop": self.loop.describe() if self.loop is not None else None}
         if self.oiir is not None:
             doc["online"] = {"M": self.oiir.M, "N": self.oiir.N, "bias": self.oiir.bias}
         return doc

@@ -87,7 +87,9 @@ C_TQ = 21  # fpmpi fast path: q of t = |v|^(1/q)
 C_TC0 = 22  # the polynomial's constant (the e = 0 terms)
 C_SLO = 23  # the command range in s = sgn(v) |v|^(1/q)
 C_SHI = 24
-N_CP = 26
+# (25: unused)
+C_GUARD = 26  # 1: the feedback's reversal guard (the command moves only the way the reference moves)
+N_CP = 27
 
 # -- CX: state --------------------------------------------------------------------------------------------
 S_U = 0  # last command (before the safety path), command units
@@ -121,7 +123,9 @@ S_NEWTON = 27  # samples solved by the Newton fast path
 S_SPREV2 = 28
 S_SPREV3 = 29
 S_SHIST = 30  # how many of S_SPREV, S_SPREV2, S_SPREV3 are consecutive Newton solutions
-N_CX = 31
+S_RPREV = 31  # the last finite reference, um (the reversal guard's direction); NaN: none yet
+S_GUARDN = 32  # samples whose command the reversal guard held
+N_CX = 33
 
 
 @njit(cache=True, _nrt=False)
@@ -562,6 +566,25 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         if kind != K_FPMPI and kind != K_MPI:
             CX[S_SAT] = 1.0 if u > b else (-1.0 if u < a else 0.0)
     u = min(max(u, a), b)
+    # the reversal guard: feedback may speed up, slow down or stop the command, but not reverse it
+    # while the reference moves the other way. On a hysteretic actuator each reversal starts a
+    # minor loop at the inverse's steepest slope (1/p0), where the compensated gain is least
+    # known; the sensor's noise fed back would add one every few samples, and a rig whose gain
+    # follows the drive rate reads them as a kHz drive (decision 0080). A held command is a limit
+    # for the conditional integration (S_SAT), so the integrator does not wind against it.
+    if CI[CI_PID] != 0 and CP[C_GUARD] != 0.0:
+        rp = CX[S_RPREV]
+        if rp == rp and CX[S_STARTED] != 0.0:
+            up = CX[S_UAPP]
+            if y_d > rp and u < up:
+                u = up
+                CX[S_SAT] = -1.0
+                CX[S_GUARDN] += 1.0
+            elif y_d < rp and u > up:
+                u = up
+                CX[S_SAT] = 1.0
+                CX[S_GUARDN] += 1.0
+        CX[S_RPREV] = y_d
     CX[S_U] = u
     CX[S_VPREV] = u / us
     return u

@@ -13,13 +13,19 @@ import numpy as np
 class PID:
     """Feedback in the output domain (um in, um out): ``kp`` (1), ``ki`` (1/s), ``kd`` (s),
     derivative filter ``tf_s`` (s; default 4 sample periods), integrator clamp ``i_limit`` (um;
-    default: the reference's span)."""
+    default: the reference's span). ``reversal_guard`` (on by default): the command never moves
+    against the reference's direction, so feedback adds no reversals (see
+    :func:`hilbench.online.inverse_kernels.comp_step`, decision 0080).
+
+    The defaults (kp 0.2, ki 300 1/s) suit the piezo-pmpi stage only; ``Compensator(feedback=True)``
+    designs gains from the identified loop (:mod:`hilbench.online.feedback_design`)."""
 
     kp: float = 0.2
     ki: float = 300.0
     kd: float = 0.0
     tf_s: float | None = None
     i_limit: float | None = None
+    reversal_guard: bool = True
 
     def char_poly(self, fs: float, b: np.ndarray, a: np.ndarray) -> np.ndarray:
         """Coefficients in z^-1 of ``A_G D_C + z^-1 B_G N_C`` (the closed loop's denominator) for the

@@ -288,8 +288,8 @@ def track(
     """Track ``reference`` (um) on ``rig`` with the inverse of ``model`` (a fitted
     :class:`~hilbench.models.Model` or its JSON file); see the module docstring.
 
-    ``feedback``: a :class:`PID` or True (default gains); ``online``: True or OIIR options for the
-    adaptive compensator (fpmpi models). ``precondition``: before the run, a full-range cycle
+    ``feedback``: True (gains designed from the identified loop) or a :class:`PID` (checked on
+    it); ``online``: True or OIIR options for the adaptive compensator (fpmpi models). ``precondition``: before the run, a full-range cycle
     (up to the top of the range the model was fitted on, then to the first command) wipes the
     actuator's memory so that the model's memory can match it. Writes a
     run to ``output`` (appended when it exists) when given. ``allow_clip``: run a reference that

@@ -207,3 +207,28 @@ def test_track_refuses_a_model_that_cannot_be_inverted_on_its_operating_range(tm
     assert len(lines) == 1 and "Traceback" not in result.output
     assert "operating range [-6, 6] A" in lines[0] and "falls by" in lines[0] and "6.5" not in lines[0]
     assert not out.exists()
+
+
+def test_track_designs_the_feedback_and_states_its_margins(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    """--feedback without gains: designed on the identified loop; the margins in JSON and text."""
+    rig, model = fitted
+    result = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "--reference", SINE, "--feedback",
+                                      "-o", str(tmp_path / "d.h5"), "--json"])
+    assert result.exit_code == 0, result.output
+    fb = json.loads(result.stdout)["compensator"]["feedback"]
+    assert fb["designed"] and fb["kp"] == 0.0 and fb["ki_per_s"] > 0
+    assert fb["margins"]["gain_margin_db"] >= 6.0 - 0.05 and fb["margins"]["phase_margin_deg"] >= 45.0 - 0.5
+    assert fb["margins"]["crossover_hz"] > 0 and fb["loop"]["local_gain_range"][1] >= 1.25
+    assert "um" in fb["units"]
+    text = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "--reference", SINE, "--feedback",
+                                    "--ki", "100", "-o", str(tmp_path / "t.h5")])
+    assert text.exit_code == 0, text.output
+    assert "feedback (given, um/um)" in text.output and "gain margin" in text.output and "phase margin" in text.output
+
+
+def test_track_gains_without_feedback_are_refused(fitted: tuple[Path, Path], tmp_path: Path) -> None:
+    rig, model = fitted
+    result = CliRunner().invoke(app, ["track", str(rig), "--model", str(model), "--reference", SINE, "--ki", "100",
+                                      "-o", str(tmp_path / "x.h5")])
+    assert result.exit_code == 2
+    assert "--feedback" in result.output and "Traceback" not in result.output

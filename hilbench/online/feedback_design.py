@@ -1,0 +1,398 @@
+"""Feedback designed from the identified loop, and user gains checked against the same loop.
+
+The PID of :mod:`hilbench.online.pid` acts in the output domain (um in, um out): its output is
+added to the reference before the inverse. The plant it sees is the *compensated* plant: rig
+after inverse model. If the model were exact that is a unit gain; on a rig it is not:
+
+- its **local gain** (how many um the rig moves for one um the inverse was asked for) is the ratio
+  of the rig's local slope to the model's, which moves along the loop: at reversals the inverse
+  runs at its steepest slope (1/p0), where a small error in p0 is a large error in gain, and where
+  the model misses the rig's slope (rate dependence, saturation) the ratio drifts far from 1;
+- its **dynamics** are the model's identified linear dynamics and delay (when the model has them),
+  one sample of measurement delay (the PID acts on the previous sample's measurement), and
+  whatever lag the rig has that the model lacks (amplifier bandwidth, mechanics).
+
+:func:`identify_loop` measures both from the model's training data when the recording is at
+hand (the runs named in the model's ``fitted_on``): the model is run on the recorded command,
+the unmodelled lag is the time shift that best maps the model's output onto the measured one
+(least squares on the model output's derivative), and the local gain range is the 5th-95th
+percentile of the measured over the modelled rise on monotone stretches of the model output
+(each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least
+0.8-1.25, its lower end at least a tenth of the median; more than a quarter of the stretches
+moving against the model is refused. Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
+design's 6 dB and 45 deg are then the only allowance for what the model misses, and its crossover
+is kept below fs / 100.
+
+:func:`design` picks an integral-only controller (kp = 0: the proportional path would pass the
+sensor's noise straight into the command, which on a hysteretic actuator starts a minor loop at
+the inverse's steepest slope every few samples) with the largest integral gain whose loop keeps a
+gain margin of at least 6 dB and a phase margin of at least 45 deg at every gain of the range,
+and whose closed-loop poles lie inside the unit circle at every gain of the range (the unmodelled
+lag rounded up to whole samples), crossing over no higher than the training input's excited
+bandwidth (:func:`hilbench.diagnosis.input_motion.excited_bandwidth_hz`): above it the rig's
+dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there.
+Where the model's training error is near the sensor's noise, the gain is lowered until the noise
+it feeds back adds at most a quarter of the model's error power (:func:`noise_budget_ki`).
+:func:`check` evaluates user gains on the same loop and raises
+:class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hilbench.errors import UserError
+from hilbench.online.pid import PID
+
+__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "noise_budget_ki",
+           "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
+
+#: design targets over the whole local-gain range
+MIN_GAIN_MARGIN_DB = 6.0
+MIN_PHASE_MARGIN_DEG = 45.0
+#: the local-gain estimate is widened to at least this band around 1 (a fit is never exact)
+MIN_GAIN_BAND = (0.8, 1.25)
+#: monotone stretches of the model output this fraction of its span long give one local gain
+STRETCH_FRACTION = 0.02
+GAIN_PERCENTILES = (5.0, 95.0)
+#: refused above this fraction of stretches where the rig moves against the model
+MAX_NEGATIVE_FRACTION = 0.25
+#: the local gain's lower end is at least this fraction of its median
+GAIN_FLOOR = 0.1
+#: the fed-back noise may add at most this fraction of the model's own error power
+NOISE_BUDGET = 0.25
+#: without training data the design crosses over at most at fs / this
+NO_DATA_BANDWIDTH_DIVISOR = 100.0
+#: gains evaluated across the range (geometric)
+GAIN_POINTS = 9
+
+
+class InstabilityError(UserError):
+    """A compensator or feedback configuration that cannot be stable; refused before the loop starts."""
+
+
+@dataclass
+class IdentifiedLoop:
+    """The loop the output-domain PID closes: ``z^-1 (measurement) z^-d G(z) e^{-s lag}`` times a
+    local gain in ``gain_range``. ``b, a``: the model's dynamics (z^-1 polynomials, unit DC
+    gain), ``delay_samples`` the model's delay, ``lag_s`` the unmodelled lag (s)."""
+
+    fs: float
+    b: np.ndarray
+    a: np.ndarray
+    delay_samples: int
+    lag_s: float
+    gain_range: tuple[float, float]
+    source: str
+    noise_um: float | None = None
+    bandwidth_hz: float | None = None
+    residual_um: float | None = None  # rms of measured - model over the training runs
+
+    @property
+    def has_dynamics(self) -> bool:
+        return bool(self.b.size > 1 or self.a.size > 1)
+
+    def gains(self) -> np.ndarray:
+        lo, hi = self.gain_range
+        return np.geomspace(lo, hi, GAIN_POINTS) if hi > lo else np.array([lo])
+
+    def plant_response(self, w: np.ndarray) -> np.ndarray:
+        """Unit-gain plant (measurement delay included) at angular frequencies w (rad/s)."""
+        zi = np.exp(-1j * w / self.fs)  # z^-1
+        g = np.polyval(self.b[::-1], zi) / np.polyval(self.a[::-1], zi)
+        return g * zi ** (1 + self.delay_samples) * np.exp(-1j * w * self.lag_s)
+
+    def integer_plant(self) -> tuple[np.ndarray, np.ndarray]:
+        """(b, a) with the model delay and the unmodelled lag rounded up, for the pole check (the
+        measurement delay is in :meth:`PID.char_poly`)."""
+        extra = self.delay_samples + int(math.ceil(self.lag_s * self.fs - 1e-9))
+        return np.concatenate([np.zeros(extra), self.b]), self.a
+
+    def describe(self) -> dict[str, Any]:
+        return {"local_gain_range": [float(self.gain_range[0]), float(self.gain_range[1])],
+                "model_delay_samples": int(self.delay_samples), "measurement_delay_samples": 1,
+                "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none",
+                "source": self.source, "noise_um": self.noise_um,
+                "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um}
+
+
+# ====================================================================================================
+# identification
+# ====================================================================================================
+
+
+def _model_dynamics(model: Any, fs: float) -> tuple[np.ndarray, np.ndarray, int]:
+    b, a = np.ones(1), np.ones(1)
+    dyn = model.effect("dynamics")
+    if dyn is not None:
+        b, a = (np.asarray(x, float) for x in dyn.coefficients(fs))
+        dc = float(np.sum(b) / np.sum(a))
+        if math.isfinite(dc) and dc != 0.0:
+            b = b / dc  # the static gain is the hysteresis model's; the loop sees the shape
+    delay = model.effect("delay")
+    d = int(round(delay.param("seconds") * fs)) if delay is not None else 0
+    return b, a, d
+
+
+def _training_runs(model: Any) -> list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], float]]:
+    """(input, output, aux, fs, n_train) of the runs the model was fitted on, in order, when the
+    files are at hand; the first n_train samples trained it (70 % unless the split names runs)."""
+    from hilbench.recording.hdf5 import Recording
+
+    runs = []
+    info = getattr(model, "info", {}) or {}
+    split = str((info.get("fit") or {}).get("split", ""))
+    fraction = 0.7 if "first" in split else 1.0
+    for entry in info.get("fitted_on", []) or []:
+        try:
+            run = Recording(entry["file"]).run(entry["run"])
+            data = run.data()
+        except Exception:  # noqa: BLE001  (a moved or unreadable file: fall back to assumptions)
+            continue
+        n = int(fraction * data["input"].size)
+        aux = {k: np.asarray(v, float) for k, v in data.items() if k not in ("time", "input", "output")}
+        runs.append((np.asarray(data["input"], float), np.asarray(data["output"], float), aux,
+                     float(run.sample_rate_hz), n))
+    return runs
+
+
+def _lag_and_gains(y_meas: np.ndarray, y_mod: np.ndarray) -> tuple[float, np.ndarray, float] | None:
+    """The lag (samples) mapping the model's output onto the measured one, the local gains of the
+    monotone stretches (after that shift), and the noise (um rms) of one run."""
+    ok = np.isfinite(y_meas) & np.isfinite(y_mod)
+    if np.count_nonzero(ok) < 50:
+        return None
+    y_meas, y_mod = y_meas[ok], y_mod[ok]
+    d = np.gradient(y_mod)
+    r = y_meas - y_mod
+    den = float(np.dot(d, d))
+    if den <= 0.0:
+        return None
+    lag = max(0.0, -float(np.dot(r, d)) / den)  # y(k) ~ y_mod(k - lag)
+    for _ in range(3):  # refine: a lag of several samples is not linear in the derivative
+        k = np.arange(y_mod.size, dtype=float)
+        shifted = np.interp(k - lag, k, y_mod)
+        ds = np.gradient(shifted)
+        step = -float(np.dot(y_meas - shifted, ds)) / max(float(np.dot(ds, ds)), 1e-300)
+        lag = max(0.0, lag + step)
+        if abs(step) < 1e-3:
+            break
+    k = np.arange(y_mod.size, dtype=float)
+    shifted = np.interp(k - lag, k, y_mod)
+    span = float(np.ptp(shifted))
+    noise = float(np.std(np.diff(y_meas - shifted, 2)) / math.sqrt(6.0))
+    if span <= 0.0:
+        return lag, np.zeros(0), noise
+    # a stretch: 2 % of the model's span, and 20 noise sigma on one side at least (the ratio is then
+    # good to ~7 %: the measured rise's noise is sqrt(2) sigma)
+    step_um = STRETCH_FRACTION * span
+    floor_um = 20.0 * noise
+    gains = []
+    start = 0
+    direction = 0.0
+    for i in range(1, shifted.size):
+        dv = shifted[i] - shifted[i - 1]
+        s = 1.0 if dv > 0 else (-1.0 if dv < 0 else 0.0)
+        if s != 0.0 and direction != 0.0 and s != direction:
+            start = i - 1  # a reversal of the model output: a new stretch starts at the turning point
+        if s != 0.0:
+            direction = s
+        moved = shifted[i] - shifted[start]
+        if abs(moved) >= step_um and max(abs(moved), abs(y_meas[i] - y_meas[start])) >= floor_um:
+            gains.append((y_meas[i] - y_meas[start]) / moved)
+            start = i
+    return lag, np.asarray(gains), noise
+
+
+def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
+    """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
+    docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
+    model's training runs."""
+    from hilbench.diagnosis.input_motion import excited_bandwidth_hz
+    from hilbench.models import stepping as ST
+
+    b, a, d = _model_dynamics(model, fs)
+    runs = _training_runs(model) if runs is None else runs
+    lags: list[float] = []
+    gains: list[np.ndarray] = []
+    noises: list[float] = []
+    bands: list[float] = []
+    squares: list[float] = []
+    counts: list[int] = []
+    used = 0
+    compiled: dict[float, Any] = {}
+    for run in runs:
+        u, y, aux, run_fs = run[:4]
+        n_train = run[4] if len(run) > 4 else u.size
+        try:
+            # one model memory through the runs in order, as the fit ran them: a run starts where
+            # the last one left the actuator, not from a virgin state
+            if run_fs not in compiled:
+                compiled[run_fs] = ST.compile_model(model, run_fs)
+            y_mod = compiled[run_fs].block(u, aux or None)
+        except Exception:  # noqa: BLE001  (a model that cannot run on the record: not evidence)
+            continue
+        u, y, y_mod = u[:n_train], y[:n_train], np.asarray(y_mod, float)[:n_train]
+        got = _lag_and_gains(y, np.asarray(y_mod, float))
+        if got is None:
+            continue
+        lag, g, noise = got
+        g = g[np.isfinite(g)]
+        if not (math.isfinite(lag) and math.isfinite(noise)):
+            continue
+        lags.append(lag / run_fs)
+        gains.append(g)
+        noises.append(noise)
+        bands.append(excited_bandwidth_hz(u, run_fs))
+        r = (y - y_mod)[np.isfinite(y) & np.isfinite(y_mod)]
+        squares.append(float(np.sum(r * r)))
+        counts.append(int(r.size))
+        used += 1
+    allg = np.concatenate(gains) if gains else np.zeros(0)
+    if used == 0 or allg.size < 10:
+        # nothing measured: the model's own loop (unit gain, its dynamics and delay); the design's
+        # 6 dB and 45 deg are then the only allowance for what the model misses, and it crosses
+        # over no higher than fs / 100 (nothing says where the rig's own dynamics start)
+        return IdentifiedLoop(fs, b, a, d, 0.0, (1.0, 1.0),
+                              "the model only (no training data at hand): unit local gain, no unmodelled lag, "
+                              f"crossover at most fs/{NO_DATA_BANDWIDTH_DIVISOR:g}",
+                              bandwidth_hz=fs / NO_DATA_BANDWIDTH_DIVISOR)
+    lo, hi = (float(np.percentile(allg, p)) for p in GAIN_PERCENTILES)
+    negative = float(np.mean(allg <= 0.0))
+    median = float(np.median(allg))
+    if negative > MAX_NEGATIVE_FRACTION or not median > 0.0:
+        raise InstabilityError(
+            f"the rig's local gain over the model's ({GAIN_PERCENTILES[0]:g}th-{GAIN_PERCENTILES[1]:g}th percentile "
+            f"over the model's training runs) ranges from {lo:.3g} to {hi:.3g}, negative on {100 * negative:.0f} % of "
+            "the stretches: there the rig moves against the model, and no output-domain feedback is stable on both "
+            "signs", hint="fit a model that follows the rig (hilbench diagnose), then add feedback")
+    # a few stretches against the model (at reversals, where a lag is not a pure shift) are not the
+    # rig's gain: the lower end only slows an integrator down, it does not destabilise it
+    lo = max(lo, GAIN_FLOOR * median)
+    lo, hi = min(lo, MIN_GAIN_BAND[0]), max(hi, MIN_GAIN_BAND[1])
+    # the largest lag of any training run: the loop must hold at the slowest the rig answered
+    lag_s = max(lags)
+    return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
+                          noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
+                          residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)))
+
+
+# ====================================================================================================
+# margins, design, check
+# ====================================================================================================
+
+
+def _controller_response(pid: PID, fs: float, w: np.ndarray) -> np.ndarray:
+    T = 1.0 / fs
+    tf = pid.tf_s if pid.tf_s is not None else 4.0 * T
+    zi = np.exp(-1j * w / fs)
+    integ = pid.ki * T / (1.0 - zi)
+    deriv = pid.kd * (1.0 - zi) / ((tf + T) - tf * zi)
+    return pid.kp + integ + deriv
+
+
+def _grid(fs: float) -> np.ndarray:
+    return 2.0 * np.pi * np.geomspace(1e-5 * fs, 0.5 * fs, 6000)
+
+
+def margins(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:
+    """Gain margin (dB), phase margin (deg) and crossover (Hz), the worst over the gain range, and
+    whether the closed-loop poles stay inside the unit circle at every gain of the range."""
+    w = _grid(loop.fs)
+    base = _controller_response(pid, loop.fs, w) * loop.plant_response(w)
+    gm, pm, fc = math.inf, math.inf, 0.0
+    for g in loop.gains():
+        L = g * base
+        mag = np.abs(L)
+        ph = np.unwrap(np.angle(L))
+        # phase crossings of -180 - 360 k deg: the gain margin is 1/|L| there
+        # (a loop that reaches -180 deg exactly at the Nyquist frequency crosses there)
+        turns = np.floor((ph + np.pi * (1 - 1e-9)) / (2 * np.pi))
+        for i in np.flatnonzero(np.diff(turns) != 0):
+            gm = min(gm, -20.0 * math.log10(max(float(mag[i]), 1e-300)))
+        # unit-gain crossings: the phase margin is 180 + phase there (wrapped to (-180, 180])
+        for i in np.flatnonzero(np.diff(np.sign(mag - 1.0)) != 0):
+            margin = math.degrees((float(ph[i]) + np.pi) % (2 * np.pi))
+            margin = margin - 360.0 if margin > 180.0 else margin
+            pm = min(pm, margin)
+            fc = max(fc, float(w[i]) / (2 * np.pi))
+    bi, ai = loop.integer_plant()
+    radius = 0.0
+    for g in loop.gains():
+        radius = max(radius, float(np.max(np.abs(pid.poles(loop.fs, g * bi, ai)), initial=0.0)))
+    return {"gain_margin_db": gm, "phase_margin_deg": pm, "crossover_hz": fc, "max_pole_radius": radius,
+            "stable": bool(radius < 1.0 - 1e-9)}
+
+
+def _meets(m: dict[str, Any], loop: IdentifiedLoop) -> bool:
+    # above the training's excited bandwidth the rig's dynamics were never seen: no crossover there
+    cap = loop.bandwidth_hz if loop.bandwidth_hz else math.inf
+    return (m["stable"] and m["gain_margin_db"] >= MIN_GAIN_MARGIN_DB
+            and m["phase_margin_deg"] >= MIN_PHASE_MARGIN_DEG and m["crossover_hz"] <= cap)
+
+
+def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, dict[str, Any]]:
+    """The integral-only PID with the largest ki (1/s) meeting the margins over the gain range
+    (bisection in log ki: the loop gain scales with ki, the margins fall with it), lowered to
+    :func:`noise_budget_ki` where the model's error is near the sensor's noise."""
+    lo, hi = 1e-6 * loop.fs, 10.0 * loop.fs
+    if not _meets(margins(PID(0.0, lo, 0.0, i_limit=i_limit), loop), loop):
+        raise InstabilityError(f"no integral gain down to {lo:.3g} 1/s keeps {MIN_GAIN_MARGIN_DB:g} dB and "
+                               f"{MIN_PHASE_MARGIN_DEG:g} deg over the local gain range "
+                               f"{loop.gain_range[0]:.3g}-{loop.gain_range[1]:.3g}")
+    for _ in range(50):
+        mid = math.sqrt(lo * hi)
+        if _meets(margins(PID(0.0, mid, 0.0, i_limit=i_limit), loop), loop):
+            lo = mid
+        else:
+            hi = mid
+        if hi / lo < 1.01:
+            break
+    ki = lo
+    m_max = margins(PID(0.0, ki, 0.0), loop)
+    budget = noise_budget_ki(loop)
+    if budget is not None and budget < ki:
+        ki = max(budget, 1e-6 * loop.fs)
+    pid = PID(0.0, ki, 0.0, i_limit=i_limit, reversal_guard=True)
+    m = margins(pid, loop)
+    m["ki_max_per_s"] = float(lo)
+    m["crossover_max_hz"] = m_max["crossover_hz"]
+    m["noise_limited"] = bool(ki < lo)
+    return pid, m
+
+
+def noise_budget_ki(loop: IdentifiedLoop) -> float | None:
+    """The integral gain (1/s) whose fed-back sensor noise adds at most NOISE_BUDGET of the model's
+    own error power to the measured error (None without training data).
+
+    An integrator of k = g ki / fs per sample, one sample late, passes white noise of variance
+    sigma^2 to the measured error with variance sigma^2 (1 + k / (2 - k)); what it can remove is
+    the model's error, E^2 = (training rms error)^2 - sigma^2. Where the model is already at the
+    sensor's noise floor, E is small and so is the gain: feedback has nothing to remove there and
+    would only add noise."""
+    if loop.residual_um is None or loop.noise_um is None or not loop.noise_um > 0.0:
+        return None
+    e2 = max(loop.residual_um ** 2 - loop.noise_um ** 2, 0.0)
+    budget = NOISE_BUDGET * e2
+    k = 2.0 * budget / (loop.noise_um ** 2 + budget)
+    return k * loop.fs / loop.gain_range[1]
+
+
+def check(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:
+    """User gains on the identified loop: the margins; InstabilityError (with the numbers) when a
+    closed-loop pole leaves the unit circle at a gain of the range."""
+    m = margins(pid, loop)
+    if not m["stable"]:
+        lo, hi = loop.gain_range
+        raise InstabilityError(
+            f"PID kp={pid.kp:g}, ki={pid.ki:g} 1/s, kd={pid.kd:g} s (output domain, um/um) destabilise the "
+            f"identified loop: closed-loop pole at |z| = {m['max_pole_radius']:.4g} >= 1 over the local gain "
+            f"range {lo:.3g}-{hi:.3g} with {'the model' if loop.has_dynamics else 'no'} dynamics, "
+            f"{loop.delay_samples + 1} sample(s) of delay (one of measurement) and {loop.lag_s * 1e3:.3g} ms of "
+            f"unmodelled lag ({loop.source})",
+            hint="omit --kp/--ki/--kd to have the gains designed from the identified loop")
+    return m
