@@ -5,6 +5,7 @@ it was never tuned to?
     python benchmarks/bench_diagnosis_random.py --cases 60 --auto     # also diagnose(..., auto=True)
     python benchmarks/bench_diagnosis_random.py --cases 200 --auto-cases 60 --workers 2
     python benchmarks/bench_diagnosis_random.py --only 3 17 42        # these case seeds
+    python benchmarks/bench_diagnosis_random.py --regressions --workers 2   # every seeded regression
 
 Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
 --cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
@@ -136,6 +137,22 @@ def _names_hidden(candidate: str, hidden: list[str]) -> bool:
     return all(part in hidden for part in candidate.split("+"))
 
 
+def _found(r: dict[str, Any]) -> bool:
+    """The first candidate is significant and names hidden effects only: one of them, or a pair
+    (``a+b``, judged jointly) both of whose members are hidden. A pair with a member that is not
+    hidden is a miss, even when the other member is."""
+    if not r.get("significant") or r.get("ranked_first") != r["significant"][0]:
+        return False
+    return _names_hidden(r["significant"][0], r["hidden"])
+
+
+def _hit(r: dict[str, Any]) -> bool:
+    """A case diagnosed as it should be: its hidden effect found, or nothing flagged on a clean one."""
+    if "error" in r:
+        return False
+    return not r.get("significant") if r.get("kind") == "clean" else _found(r)
+
+
 def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
     ok = [r for r in results if "error" not in r]
     confusion: dict[str, Counter] = defaultdict(Counter)
@@ -145,13 +162,7 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
         if "auto_added" in r:
             confusion_auto[_hidden_key(r)][(r["auto_added"] or ["nothing"])[0]] += 1
 
-    def hit(r: dict[str, Any]) -> bool:
-        """The first candidate is significant and names hidden effects only: one of them, or a pair
-        (``a+b``, judged jointly) both of whose members are hidden. A pair with a member that is not
-        hidden is a miss, even when the other member is."""
-        if not r.get("significant") or r.get("ranked_first") != r["significant"][0]:
-            return False
-        return _names_hidden(r["significant"][0], r["hidden"])
+    hit = _found
 
     hidden = [r for r in ok if r["kind"] != "clean"]
     clean = [r for r in ok if r["kind"] == "clean"]
@@ -251,6 +262,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--auto", action="store_true", help="also run diagnose(..., auto=True)")
     ap.add_argument("--auto-cases", type=int, default=None, help="with --auto: only the first N cases")
     ap.add_argument("--only", type=int, nargs="*", help="these case seeds instead of a range")
+    ap.add_argument("--regressions", action="store_true",
+                    help="the seeded regressions of benchmarks/diagnosis_regressions.py (those the test suite "
+                         "leaves out too); the JSON's 'regressions_missed' lists the ones not hit")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
     ap.add_argument("--summarize", type=str, default=None,
@@ -263,7 +277,14 @@ def main(argv: list[str] | None = None) -> None:
         rows.sort(key=lambda r: r["seed"])
         print(json.dumps({**summarize(rows, any("auto_added" in r for r in rows)), "cases": rows}, indent=2, default=float))
         return
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, a.only)
+    only = a.only
+    if a.regressions:
+        import diagnosis_regressions as DR
+
+        only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only)
+    if a.regressions:
+        doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
     text = json.dumps(doc, indent=2, default=float)
     if a.output:
         Path(a.output).write_text(text, encoding="utf-8")

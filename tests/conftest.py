@@ -3,10 +3,49 @@
 from __future__ import annotations
 
 import os
-import textwrap
-from pathlib import Path
+import platform
+import shutil
+import tempfile
 
-import pytest
+# What a diagnosis verdict's last bits depend on, pinned before anything imports numpy (pytest loads
+# this file first; _check_pins below checks that it held). A few seeded verdicts rest on leaders a
+# hair apart, and the hair followed the CPU:
+# - numpy picks its SIMD kernels at import from the CPU: on AVX-512 machines (Intel Xeon, AMD EPYC
+#   Zen 4) its X86_V4/ICL/SPR kernels round reductions and transcendentals differently from the AVX2
+#   (X86_V3) ones that every x86-64 machine of the last decade has. Disabled here: X86_V3 everywhere.
+# - OpenBLAS picks its kernels at load (SkylakeX on AVX-512, Haswell or Zen on AVX2 machines), and
+#   they sum a product in different orders (seed 140's PMPI base lands in another optimum on each).
+#   Haswell's kernels run on every x86-64 CPU with AVX2 and FMA; where the platform already sets
+#   OPENBLAS_CORETYPE (some processors need it to compute right), its choice is kept.
+# - BLAS and OpenMP run one thread, so no sum is split by the thread count (the suite's parallelism
+#   is its worker processes).
+# Set, not defaulted (but the core type): a CPU-dependent outcome must not come back through the
+# environment. The tool itself is not pinned: users keep their machine's fastest kernels.
+if platform.machine().lower() in ("x86_64", "amd64"):
+    os.environ["NPY_DISABLE_CPU_FEATURES"] = "X86_V4 AVX512_ICL AVX512_SPR"
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as _cpuinfo:
+            _flags = next((line for line in _cpuinfo if line.startswith("flags")), "").split()
+    except OSError:
+        _flags = []
+    if {"avx2", "fma"} <= set(_flags):
+        os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
+for _threads in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_threads] = "1"
+
+# One numba cache for the run, made afresh: the test workers, the commands the tests start as
+# subprocesses and the benchmark scripts (which otherwise compile into a private cache of their own)
+# load the kernels whichever process compiled them first. Afresh, because a cached kernel that inlines
+# one from another module is not recompiled when only that module changed (README, Layout).
+_OWN_NUMBA_CACHE = "HILBENCH_TESTS_NUMBA_CACHE" not in os.environ and "NUMBA_CACHE_DIR" not in os.environ
+if _OWN_NUMBA_CACHE:  # the first process of the run; its test workers inherit the variables
+    os.environ["HILBENCH_TESTS_NUMBA_CACHE"] = os.environ["NUMBA_CACHE_DIR"] = tempfile.mkdtemp(
+        prefix="hilbench-tests-numba-")
+
+import textwrap  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -65,3 +104,68 @@ def write_rig(tmp_path: Path):
         return path
 
     return _write
+
+
+# ----------------------------------------------------------------------------------------------------
+# Parallel runs (pytest-xdist, `-n auto` in pyproject.toml)
+# ----------------------------------------------------------------------------------------------------
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    _check_pins()
+    worker = os.environ.get("PYTEST_XDIST_WORKER")  # "gw0", "gw1", ... in a pytest-xdist worker
+    if worker and hasattr(os, "sched_setaffinity"):
+        # One core per test worker: a diagnosis sizes its own worker processes by the cores it may
+        # run on (hilbench.diagnosis.workers.default_jobs), so two test workers that each forked a
+        # process per core would run four CPU-bound processes on two cores. The verdicts do not
+        # depend on the number of processes (results return in task order).
+        cores = sorted(os.sched_getaffinity(0))
+        count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+        if count <= len(cores):
+            index = int(worker.lstrip("gw") or 0)
+            share = cores[index::count]
+            os.sched_setaffinity(0, share)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _OWN_NUMBA_CACHE:
+        shutil.rmtree(os.environ["HILBENCH_TESTS_NUMBA_CACHE"], ignore_errors=True)
+
+
+def _check_pins() -> None:
+    """The pins above held: numpy was not imported before this file set them."""
+    import numpy as np  # noqa: F401  (after the pins: imported here first)
+
+    try:
+        from numpy._core._multiarray_umath import __cpu_features__ as features
+    except ImportError:  # numpy < 2
+        from numpy.core._multiarray_umath import __cpu_features__ as features
+    active = [name for name in ("X86_V4", "AVX512_ICL", "AVX512_SPR") if features.get(name)]
+    if os.environ.get("NPY_DISABLE_CPU_FEATURES") and active:
+        raise pytest.UsageError(f"numpy was imported before tests/conftest.py pinned its kernels ({', '.join(active)} "
+                                "still active): a plugin or sitecustomize imports numpy first; run without it")
+    from threadpoolctl import threadpool_info
+
+    wanted = os.environ.get("OPENBLAS_CORETYPE", "").lower()
+    for pool in threadpool_info():
+        if pool.get("internal_api") != "openblas":
+            continue
+        if pool.get("num_threads") != 1 or (wanted and str(pool.get("architecture", "")).lower() != wanted):
+            raise pytest.UsageError(f"OpenBLAS runs {pool.get('num_threads')} threads with the "
+                                    f"{pool.get('architecture')} kernels, not 1 with {wanted or 'any'}: it was "
+                                    "loaded before tests/conftest.py pinned it")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Under ``--dist loadgroup``, the tests that share a module- or class-scoped fixture run in one
+    worker, so the fixture (a sweep, a fit, a diagnosis) is built once, not once per worker; every
+    other test goes to whichever worker is free."""
+    for item in items:
+        info = getattr(item, "_fixtureinfo", None)
+        if info is None:
+            continue
+        for name in info.names_closure:
+            defs = info.name2fixturedefs.get(name)
+            if defs and defs[-1].scope in ("module", "class", "package"):
+                item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
+                break

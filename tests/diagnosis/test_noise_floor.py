@@ -75,9 +75,10 @@ FAILURE_MODES = {
 }
 
 
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("noise")
+@pytest.fixture
+def folder(tmp_path: Path) -> Path:
+    # each test writes its own files: a module-wide folder would tie them to one test worker
+    return tmp_path
 
 
 @pytest.mark.parametrize("name", list(FAILURE_MODES))

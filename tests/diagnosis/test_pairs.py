@@ -93,9 +93,10 @@ def record(folder: Path, name: str, extra: str) -> Path:
     return out
 
 
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory) -> Path:
-    return tmp_path_factory.mktemp("pairs")
+@pytest.fixture
+def folder(tmp_path: Path) -> Path:
+    # each test writes its own files: a module-wide folder would tie them to one test worker
+    return tmp_path
 
 
 def test_creep_after_load_steps_found_as_a_pair(folder):

@@ -34,9 +34,10 @@ def test_no_excursion_leaves_every_row_in():
     assert not outside_envelope(u, -1.0, 1.0).any()
 
 
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory):
-    return tmp_path_factory.mktemp("reach")
+@pytest.fixture
+def folder(tmp_path: Path) -> Path:
+    # each test writes its own files: a module-wide folder would tie them to one test worker
+    return tmp_path
 
 
 def test_a_creep_masked_by_the_memory_of_an_excursion_is_found_within_reach(folder):
