@@ -27,7 +27,7 @@ Each rig draws, from its seed alone (nothing here knows the compensator or the d
   amplitudes, full-range triangles at three rates, a decreasing triangle staircase (reversal curves),
   a logarithmic chirp towards the resonance (up to 0.6 fn) and a step staircase whose holds last
   the longest creep time constant (when there is creep) or 30 resonance periods; 16 quasi-static
-  cycles fill a budget of 25k-50k samples (fewer when the quasi-static rate is bounded 60x below the
+  cycles fill a budget of 20k-40k samples (fewer when the quasi-static rate is bounded 60x below the
   top rate, more when it is bounded 3x below it at a high sample rate), the steps add up to 3/8;
 * the **references** (:func:`references`): sine, triangle, multi-tone, steps and attenuated
   triangle at drive rates inside the characterised band, each spanning a drawn share (40-90 %) of
@@ -190,7 +190,7 @@ def draw(seed: int) -> RigDraw:
                                         "dynamics": {"kind": "second-order", "natural_frequency_hz": fn, "zeta": zeta}}
     effects: list[str] = []
     # drive rates: quasi-static up to a quarter of the resonance (and fs/40); a sample budget
-    budget = _logu(rng, 25000.0, 50000.0)
+    budget = _logu(rng, 20000.0, 40000.0)
     f_top = min(fn / 4.0, fs / 40.0)
     # 16 quasi-static cycles fill the budget, within 3-60x below the top rate
     f_qs = min(max(16.0 * fs / budget, f_top / 60.0), f_top / 3.0)
