@@ -28,7 +28,9 @@ Prints one JSON document on stdout (progress on stderr):
   samples and output range, ``auto_added`` and ``final_spec``, the model's ``validation_erms_pct``,
   seconds per stage, and ``tracks``: per reference and mode, ``erms_pct``, its ratio to the
   validation erms, ``bound_met`` (feed-forward: erms <= max(2 val, val + 0.3 points)),
-  ``feedback_not_worse``, ``refused`` (the message of a UserError/InstabilityError raised before the
+  ``feedback_not_worse``, ``model_erms_pct`` (the fitted model's own free-run error on the run's
+  applied commands, normalised like the tracking error: where it is close to ``erms_pct`` the model
+  does not carry over to the reference), ``refused`` (the message of a UserError/InstabilityError raised before the
   run), ``unstable`` (a loop that ran with erms_pct > 100 or a non-finite output); for the
   beyond-reach reference ``refused_as_unreachable`` (refused, and not with the message that refused
   the rig's reachable references in the same mode); ``error`` when a stage raised (the case is a
@@ -107,8 +109,40 @@ def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None
                feedback_gains=comp.get("feedback"), compensator_notes=list(comp.get("notes", [])),
                compensator_checks=comp.get("checks"),
                loop_seconds=float(res.seconds))
+    try:
+        model_erms = _model_erms_pct(model, res, rig_path)
+    except Exception as exc:  # noqa: BLE001 - a diagnostic column; its failure is noted, the row stays
+        row["model_error"] = f"{type(exc).__name__}: {exc}"
+    else:
+        row["model_erms_pct"] = model_erms
     row["seconds"] = time.perf_counter() - t0
     return row
+
+
+def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
+    """The fitted model's own error on the tracking run: its free run on the commands the rig
+    applied (after the history ``track`` drove before the run: rest -> top of the fitted range ->
+    first command, at the slew limit) against the measured output, normalised like the tracking
+    metric (by the reference's span). Near the tracking error, the model does not carry over to
+    this reference; well below it, the inverse or the loop loses the rest."""
+    import numpy as np
+
+    from hilbench.models.model import RunData
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.safety import ramp
+
+    cfg = load_rig(rig_path)
+    act, fs = cfg.actuator, cfg.sample_rate_hz
+    step = act.max_rate / fs
+    top = max(min(act.max, float(model.norm.get("u_scale", act.max))), act.min)
+    rest = act.rest
+    pre = np.concatenate([[rest], ramp(rest, top, step), ramp(top, res.approach_from, step)])
+    u = np.concatenate([pre, res.input])
+    aux = {ch: np.concatenate([np.full(pre.size, v[0]), v]) for ch, v in res.aux.items()}
+    y = model.simulate(RunData(u, None, aux, fs, name="track", approach_from=rest))[pre.size:]
+    e = y - res.output
+    span = float(np.ptp(res.reference))
+    return float(100.0 * np.sqrt(np.mean(e[np.isfinite(e)] ** 2)) / span) if span > 0 else math.nan
 
 
 def run_case(seed: int, folder: str) -> dict[str, Any]:
