@@ -159,10 +159,10 @@ def _check_pins() -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Under ``--dist loadgroup``, the tests that share a module- or class-scoped fixture run in one
     worker, so the fixture (a sweep, a fit, a diagnosis) is built once, not once per worker; every
-    other test goes to whichever worker is free."""
+    other test goes to whichever worker is free. A module that names its own group keeps it."""
     for item in items:
         info = getattr(item, "_fixtureinfo", None)
-        if info is None:
+        if info is None or item.get_closest_marker("xdist_group") is not None:
             continue
         for name in info.names_closure:
             defs = info.name2fixturedefs.get(name)

@@ -13,6 +13,10 @@ from hilbench.cli import app
 from hilbench.identify.metrics import METRIC_KEYS
 from hilbench.recording.hdf5 import Recording
 
+# The fused closed loop compiles for about two minutes cold: the modules that run it share one test
+# worker (tests/conftest.py), which compiles it once, instead of each worker compiling its own.
+pytestmark = pytest.mark.xdist_group("closed-loop")
+
 RIG = """
 [rig]
 name = "piezo-track-cli"
