@@ -37,6 +37,8 @@ from hilbench.models.spec import as_option
 from tests.conftest import MINIMAL_RIG
 
 COUNT = {"n": 0}
+# the count lives in this process: under pytest-xdist the module's tests share one worker
+pytestmark = pytest.mark.xdist_group("cli-bad-inputs")
 SETTINGS = settings(max_examples=110, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 _names = itertools.count()
