@@ -154,18 +154,3 @@ def _check_pins() -> None:
             raise pytest.UsageError(f"OpenBLAS runs {pool.get('num_threads')} threads with the "
                                     f"{pool.get('architecture')} kernels, not 1 with {wanted or 'any'}: it was "
                                     "loaded before tests/conftest.py pinned it")
-
-
-def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """Under ``--dist loadgroup``, the tests that share a module- or class-scoped fixture run in one
-    worker, so the fixture (a sweep, a fit, a diagnosis) is built once, not once per worker; every
-    other test goes to whichever worker is free. A module that names its own group keeps it."""
-    for item in items:
-        info = getattr(item, "_fixtureinfo", None)
-        if info is None or item.get_closest_marker("xdist_group") is not None:
-            continue
-        for name in info.names_closure:
-            defs = info.name2fixturedefs.get(name)
-            if defs and defs[-1].scope in ("module", "class", "package"):
-                item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0]))
-                break
