@@ -127,6 +127,37 @@ def pytest_configure(config: pytest.Config) -> None:
             os.sched_setaffinity(0, share)
 
 
+# Tests that share one worker, by module: the closed-loop modules compile the fused tracking loop
+# (about 110 s on one core, cold), and on one worker they compile it once and load it from the run's
+# numba cache afterwards, where two workers starting together would each compile it; the emulated
+# 001 sweeps share their simulated reference's diagnosis (test_emulated_rigs' per-process cache).
+# Grouped here, by the scheduler below, because pytest-xdist 3.8's own `xdist_group` mark renames
+# the items' node ids, which pytest 9 computes afresh (a four-test group ran on both workers).
+SHARED_WORKER_MODULES = {
+    "tests/cli/test_track.py": "closed-loop",
+    "tests/online/test_tracking.py": "closed-loop",
+    "tests/online/test_feedback_design.py": "closed-loop",
+    "tests/online/test_operating_range.py": "closed-loop",
+    "tests/runners/test_emulated_rigs.py": "emulated-001-sweeps",
+}
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """`--dist load` (the suite's default), but the modules of SHARED_WORKER_MODULES go to one worker
+    per group; the biggest units are handed out first (pytest-xdist's loadscope reordering). Other
+    `--dist` modes are pytest-xdist's own."""
+    if config.getvalue("dist") != "load":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class SharedWorkerScheduling(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return SHARED_WORKER_MODULES.get(nodeid.split("::", 1)[0], nodeid)
+
+    return SharedWorkerScheduling(config, log)
+
+
 def pytest_unconfigure(config: pytest.Config) -> None:
     if _OWN_NUMBA_CACHE:
         shutil.rmtree(os.environ["HILBENCH_TESTS_NUMBA_CACHE"], ignore_errors=True)

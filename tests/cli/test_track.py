@@ -13,9 +13,6 @@ from hilbench.cli import app
 from hilbench.identify.metrics import METRIC_KEYS
 from hilbench.recording.hdf5 import Recording
 
-# The fused closed loop compiles for about two minutes cold: the modules that run it are meant to share
-# one test worker, which compiles it once (not yet honoured by pytest-xdist here: decision 0084).
-pytestmark = pytest.mark.xdist_group("closed-loop")
 
 RIG = """
 [rig]

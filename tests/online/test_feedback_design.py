@@ -23,9 +23,6 @@ from hilbench.online.pid import PID
 from hilbench.online.tracking import track
 from hilbench.recording.hdf5 import Recording
 
-# The fused closed loop compiles for about two minutes cold: the modules that run it are meant to share
-# one test worker, which compiles it once (not yet honoured by pytest-xdist here: decision 0084).
-pytestmark = pytest.mark.xdist_group("closed-loop")
 
 FS = 1000.0
 

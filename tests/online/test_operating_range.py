@@ -25,9 +25,6 @@ from hilbench.online.operating_range import operating_range, static_major_loop
 from hilbench.online.tracking import track
 from hilbench.recording.hdf5 import Recording
 
-# The fused closed loop compiles for about two minutes cold: the modules that run it are meant to share
-# one test worker, which compiles it once (not yet honoured by pytest-xdist here: decision 0084).
-pytestmark = pytest.mark.xdist_group("closed-loop")
 
 PIEZO = """
 [rig]

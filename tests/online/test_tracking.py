@@ -22,9 +22,6 @@ from hilbench.online.inverse import PID, Compensator
 from hilbench.online.tracking import plot_tracking, track
 from hilbench.recording.hdf5 import Recording
 
-# The fused closed loop compiles for about two minutes cold: the modules that run it are meant to share
-# one test worker, which compiles it once (not yet honoured by pytest-xdist here: decision 0084).
-pytestmark = pytest.mark.xdist_group("closed-loop")
 
 SINE = "sine:amplitude=50,offset=50,frequency_hz=1,phase_deg=-90,cycles=5"  # 50 + 50 sin(2 pi t - pi/2) um
 TRIANGLE = ("attenuated-triangle:base=0,amplitude_start=100,amplitude_end=20,frequency_start_hz=0.5,"

@@ -40,9 +40,8 @@ SLOW_HEARTBEAT = {"modbus-canopen": {"lvdt": {"heartbeat_consumer_ms": 2000}}}
 
 
 # The Modbus paths' simulated references are the same recording (the same plant, sensors and seed;
-# only the devices differ): its verdict is computed once per process, keyed by the recorded data. The
-# three paths are marked to share one test worker (not yet honoured by pytest-xdist here: decision 0084).
-pytestmark = pytest.mark.xdist_group("emulated-001-sweeps")
+# only the devices differ): its verdict is computed once per process, keyed by the recorded data, and
+# the module runs on one test worker (tests/conftest.py, SHARED_WORKER_MODULES).
 _VERDICTS: dict[str, list[tuple[str, bool]]] = {}
 
 
