@@ -42,6 +42,13 @@ def error_line(message: str, hint: str | None = None) -> str:
     return " ".join(text.split())
 
 
+class RunStopped(UserError):
+    """A run stopped by the user (Ctrl-C, SIGTERM) at a safe point: recorded ``aborted``, the
+    actuator at rest. One line like any user error, exit status 130 (the shell's for SIGINT)."""
+
+    exit_code = 130
+
+
 class ConfigError(UserError):
     """A rig config or plan file is invalid."""
 

@@ -25,7 +25,9 @@ import typer
 
 from hilbench import __version__
 from hilbench import progress as _progress
+from drivers.base import DeviceError
 from hilbench.errors import UserError, error_line
+from hilbench.runners.faults import RunFault, summary
 
 app = typer.Typer(
     name="hilbench",
@@ -68,7 +70,14 @@ def user_errors(func: F) -> F:
         except UserError as exc:
             if _state["debug"]:
                 traceback.print_exc()
-            fail(exc.line(), exc.hint)
+            fail(exc.line(), exc.hint, code=getattr(exc, "exit_code", 2))
+        except (DeviceError, RunFault) as exc:
+            # a device or an interlock stopped a run: the runner made the actuator safe and closed the
+            # recording; one line naming the device, where the samples are, exit status 1
+            if _state["debug"]:
+                traceback.print_exc()
+            recorded = getattr(exc, "hilbench_recorded", None)
+            fail(summary(exc), f"recorded: {recorded}" if recorded else None, code=1)
         except OSError as exc:  # a path the system refuses: missing folder, permissions, full disk
             if exc.filename is None:
                 raise

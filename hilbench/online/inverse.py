@@ -626,6 +626,15 @@ class Compensator:
         self.CX[K.S_U] = self.CX[K.S_UAPP] = float(u[-1])
         self.CX[K.S_VPREV] = float(u[-1]) / self.CP[K.C_US]
 
+    def warm_up(self, y_d: float, aux: dict[str, float] | None = None) -> None:
+        """Compile (or load from numba's cache) :meth:`step` and :meth:`update`'s kernels by one sample
+        on copies of the state, before a fixed-rate loop's first deadline; changes no state."""
+        CI, CP, CX, I, P, X = (a.copy() for a in self.arrays())
+        oa = tuple(a.copy() if isinstance(a, np.ndarray) else a for a in self.oiir_arrays())
+        row = self._aux_row(aux).copy()
+        u = K.comp_step(CI, CP, CX, I, P, X, float(y_d), row)
+        K.comp_update(CI, CP, CX, I, P, X, oa, float(y_d), float(u), float(y_d), row)
+
     def peek(self, y_d: float, aux: dict[str, float] | None = None) -> float:
         """The command for y_d without changing any state."""
         saved = (self.CX.copy(), self.X.copy())

@@ -11,9 +11,13 @@ inlined steps pay no reference counting; the compensator's step and commit (with
 are inlined too, so no per-sample call copies their ~30 array arguments. Both loops use numpy's error
 model: under Python's, every division of the inlined code tests its divisor for zero to raise
 ZeroDivisionError (12 % of the loop's time); here a zero divisor gives inf or NaN, which the
-safety path holds (NaN) or clamps (inf) like any other bad command. The loop runs in lock-step, so its ``lateness`` channel is 0;
-a real rig is driven sample by sample from Python (:meth:`Rig.apply` and :meth:`Rig.measure`) and
-the lateness of each sample against the fixed-rate schedule is recorded.
+safety path holds (NaN) or clamps (inf) like any other bad command. The loop runs in lock-step, so its ``lateness`` channel is 0.
+
+A rig of per-sample devices runs the runner's fixed-rate loop (:mod:`hilbench.runners.fixed_rate`,
+the one every experiment on a real rig runs) with the compensator as its law
+(:class:`CompensatorLaw`): interlocks, watchdog, Ctrl-C held off to a safe point (the run recorded
+``aborted``, :class:`~hilbench.errors.RunStopped`), the recording streamed and closed with its status,
+the lateness of each sample recorded and summarised (``TrackResult.loop``).
 
 The plant's sensor noise and temperature/load trajectories are drawn from the plant's own seeded
 streams in the order its block mode draws them, so a tracking run is reproducible.
@@ -48,7 +52,7 @@ from typing import Any
 import numpy as np
 from numba import njit
 
-from hilbench.errors import UserError
+from hilbench.errors import RunStopped, UserError
 from hilbench.online.health import run_health
 from hilbench.online.inverse import PID, Compensator
 from hilbench.online.inverse_kernels import comp_step, comp_update
@@ -228,6 +232,7 @@ class TrackResult:
     approach_from: float = 0.0  # the applied command just before the first sample
     health: dict[str, Any] = field(default_factory=dict)
     reference_clipped: dict[str, Any] | None = None
+    loop: dict[str, Any] | None = None  # a run on devices: the fixed-rate loop's lateness figures
 
     @property
     def error(self) -> np.ndarray:
@@ -237,6 +242,7 @@ class TrackResult:
         return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
                 "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,
                 "loop_seconds": self.seconds, "health": self.health,
+                **({"loop": self.loop} if self.loop else {}),
                 **({"reference_clipped": self.reference_clipped} if self.reference_clipped else {})}
 
 
@@ -317,41 +323,164 @@ def track(
     aux0 = _first_aux(rig, comp) if comp.channels else None
     first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
     _drive(rig, comp, first)
-    if rig.lockstep is not None:
-        rig.lockstep.start_run()
+    plant = getattr(rig.lockstep, "plant", None)
+    if plant is None or not hasattr(plant, "step_arrays"):
+        return _track_on_devices(rig, comp, ref, described, clipped, output, label, aux0)
+    # Lock-step simulation: the fused loop, on the rig's own safety state.
+    rig.lockstep.start_run()
     approach_from = rig.last_applied
     started = time.perf_counter()
     n = ref.size
     cmd, applied, y = np.empty(n), np.empty(n), np.empty(n)
-    lateness = np.zeros(n)
     aux_rec: dict[str, list[np.ndarray]] = {}
     limited = 0
-    plant = getattr(rig.lockstep, "plant", None)
-    if plant is not None and hasattr(plant, "step_arrays"):
-        # Lock-step simulation: the fused loop, on the rig's own safety state.
-        loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig.safety_state)
-        for start in range(0, n, chunk_samples):
-            stop = min(n, start + chunk_samples)
-            out = loop.run(ref[start:stop])
-            cmd[start:stop], applied[start:stop], y[start:stop] = out["command"], out["input"], out["output"]
-            for k, v in out["aux"].items():
-                aux_rec.setdefault(k, []).append(v)
-            limited += out["changed"]
-        rig.clamped_samples += limited
-    else:
-        limited = _python_loop(rig, comp, ref, cmd, applied, y, lateness, aux_rec)
+    loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig.safety_state)
+    for start in range(0, n, chunk_samples):
+        stop = min(n, start + chunk_samples)
+        out = loop.run(ref[start:stop])
+        cmd[start:stop], applied[start:stop], y[start:stop] = out["command"], out["input"], out["output"]
+        for k, v in out["aux"].items():
+            aux_rec.setdefault(k, []).append(v)
+        limited += out["changed"]
+    rig.clamped_samples += limited
     seconds = time.perf_counter() - started
     aux = {k: np.concatenate(v) for k, v in aux_rec.items()}
-    result = TrackResult(tracking_metrics(ref, y), np.arange(n) / fs, ref, cmd, applied, y, comp.describe(),
-                         limited=limited, aux=aux, seconds=seconds, approach_from=approach_from)
+    result = _result(rig, comp, ref, cmd, applied, y, aux, described, clipped)
+    result.limited, result.seconds, result.approach_from = limited, seconds, approach_from
+    if output is not None:
+        result.file, result.group = _write(rig, result, output, label)
+    return result
+
+
+def _result(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, applied: np.ndarray, y: np.ndarray,
+            aux: dict[str, np.ndarray], described: dict[str, Any], clipped: dict[str, Any] | None) -> TrackResult:
+    """The run's figures: metrics of the output against the reference, the compensator's counters,
+    the run's health."""
+    act = rig.actuator
+    result = TrackResult(tracking_metrics(ref, y), np.arange(ref.size) / rig.sample_rate_hz, ref, cmd, applied, y,
+                         comp.describe(), aux=aux)
     result.compensator["counters"] = comp.counters()
     result.compensator["reference"] = described
     result.health = run_health(cmd, applied, comp.bracket, (act.min, act.max),
-                               result.metrics.get("erms_pct", math.nan), model)
+                               result.metrics.get("erms_pct", math.nan), comp.model)
     result.reference_clipped = clipped
-    if output is not None:
-        result.file, result.group = _write(rig, result, output, label, lateness)
     return result
+
+
+def _finish_attrs(result: TrackResult) -> dict[str, Any]:
+    """What a tracking run's recording keeps besides its samples."""
+    extra = {"compensator": json.dumps(result.compensator, default=str), "metrics": json.dumps(result.metrics),
+             "health": json.dumps(result.health, default=str), "degraded": bool(result.health.get("degraded", False))}
+    if result.reference_clipped is not None:
+        extra["reference_clipped"] = json.dumps(result.reference_clipped)
+    return extra
+
+
+class ReferenceSource:
+    """A reference (um) as the fixed-rate loop's run source (an :class:`Excitation`'s interface)."""
+
+    def __init__(self, values: np.ndarray, described: dict[str, Any]):
+        self.values = np.ascontiguousarray(values, dtype=np.float64)
+        self.described = described
+
+    def n_samples(self, sample_rate_hz: float) -> int:
+        return int(self.values.size)
+
+    def chunks(self, sample_rate_hz: float, chunk: int) -> Any:
+        for start in range(0, self.values.size, chunk):
+            yield self.values[start:start + chunk]
+
+    def describe(self) -> dict[str, Any]:
+        return {"reference": self.described}
+
+
+class CompensatorLaw:
+    """The compensator as the fixed-rate loop's closed-loop law on a real rig
+    (:class:`hilbench.runners.fixed_rate.LoopLaw`): per sample its command for the reference (with
+    the aux channels measured at the sample before), then the commit of what was applied and
+    measured (model memory, feedback, identifier). It keeps the run's reference, commands and output
+    (preallocated) for the figures the recording gets when the run ends, whatever its status."""
+
+    def __init__(self, comp: Compensator, aux0: dict[str, float] | None, n: int,
+                 on_finish: Any):
+        self.comp = comp
+        self.aux = dict(aux0) if aux0 else None
+        self.k = 0
+        self.ref, self.cmd, self.applied, self.y = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        self._on_finish = on_finish
+        self._step = comp.step
+        self._update = comp.update
+
+    def command(self, reference: float) -> float:
+        u = self._step(reference, self.aux)
+        self.cmd[self.k] = u
+        return u
+
+    def commit(self, reference: float, applied: float, row: dict[str, float]) -> None:
+        aux = self.aux
+        if aux is not None:
+            for c in aux:
+                aux[c] = row[c]
+        y = row["output"]
+        self._update(reference, applied, y, aux)
+        k = self.k
+        self.ref[k], self.applied[k], self.y[k] = reference, applied, y
+        self.k = k + 1
+
+    def finish_attrs(self, samples: int) -> dict[str, Any]:
+        k = self.k
+        return self._on_finish(self.ref[:k], self.cmd[:k], self.applied[:k], self.y[:k])
+
+
+def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: dict[str, Any],
+                      clipped: dict[str, Any] | None, output: str | Path | None, label: str,
+                      aux0: dict[str, float] | None) -> TrackResult:
+    """Per-sample devices: the runner's fixed-rate loop (:mod:`hilbench.runners.fixed_rate`) with the
+    compensator as its law, so a tracking run has what every experiment on a real rig has: the
+    interlocks, the watchdog, Ctrl-C and SIGTERM held off to the end of a chunk, the recording streamed
+    and closed with its status, the actuator ramped to rest on any fault. The compensator's kernels
+    are compiled before the first deadline. Without ``output`` the run is recorded to a temporary file
+    (a run on hardware is always recorded while it runs), removed afterwards."""
+    import tempfile
+
+    from hilbench.excitation.plan import PlannedRun
+    from hilbench.recording.hdf5 import Recording
+    from hilbench.runners.sweep import run_plan
+
+    comp.warm_up(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
+    approach_from = rig.last_applied
+
+    def figures(r: np.ndarray, cmd: np.ndarray, applied: np.ndarray, y: np.ndarray) -> dict[str, Any]:
+        return _finish_attrs(_result(rig, comp, r, cmd, applied, y, {}, described, clipped))
+
+    law = CompensatorLaw(comp, aux0, ref.size, figures)
+    temporary = tempfile.TemporaryDirectory(prefix="hilbench-track-") if output is None else None
+    path = Path(output) if output is not None else Path(temporary.name) / "track.h5"  # type: ignore[union-attr]
+    try:
+        started = time.perf_counter()
+        outcome = run_plan(rig, [PlannedRun(label, ReferenceSource(ref, described))], path,  # type: ignore[arg-type]
+                           experiment="track", mode="fixed-rate", law=law, pace=rig.pace,
+                           run_attrs={"compensator": json.dumps(comp.describe(), default=str)})
+        seconds = time.perf_counter() - started
+        (done,) = outcome.runs
+        if done.status == "aborted":
+            raise RunStopped(done.reason.splitlines()[0], where=f"{path} run {done.group}" if output else None,
+                             hint="the samples before the interrupt are recorded (status aborted)" if output else None)
+        run = Recording(path).run(done.group)
+        data = run.data()
+        aux = {c: data[c] for c in data if c not in ("time", "input", "output", "reference", "command", "error",
+                                                      "lateness")}
+        result = _result(rig, comp, data["reference"], data["command"], data["input"], data["output"], aux,
+                         described, clipped)
+        result.limited = int(np.count_nonzero(result.command != result.input))
+        result.seconds, result.approach_from = seconds, approach_from
+        result.loop = {k: run.attrs.get(k) for k in ("overruns", "lateness_p50_s", "lateness_p99_s", "lateness_max_s")}
+        if output is not None:
+            result.file, result.group = str(path), done.group
+        return result
+    finally:
+        if temporary is not None:
+            temporary.cleanup()
 
 
 def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
@@ -399,60 +528,26 @@ def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
     return {k: float(measured[k][0]) for k in comp.channels}
 
 
-def _python_loop(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, applied: np.ndarray,
-                 y: np.ndarray, lateness: np.ndarray, aux_rec: dict[str, list[np.ndarray]]) -> int:
-    """A real rig, one sample at a time at the fixed rate; the lateness of each sample is recorded."""
-    period = 1.0 / rig.sample_rate_hz
-    realtime = not rig.config.simulated or rig.config.realtime
-    t0 = time.perf_counter()
-    changed_before = rig.clamped_samples
-    aux_now: dict[str, float] = {}
-    one = np.empty(1)
-    for k in range(ref.size):
-        if realtime:
-            due = t0 + k * period
-            now = time.perf_counter()
-            if now < due:
-                time.sleep(due - now)
-            lateness[k] = max(0.0, time.perf_counter() - due)
-        u = comp.step(float(ref[k]), aux_now if comp.channels else None)
-        one[0] = u
-        c = rig.apply(one)
-        measured = rig.measure(c)
-        aux_now = {ch: float(measured[ch][0]) for ch in comp.channels}
-        comp.update(float(ref[k]), float(c[0]), float(measured["output"][0]), aux_now if comp.channels else None)
-        cmd[k], applied[k], y[k] = u, c[0], measured["output"][0]
-        for ch, v in measured.items():
-            if ch != "output":
-                aux_rec.setdefault(ch, []).append(np.asarray(v, float))
-    return rig.clamped_samples - changed_before
-
-
-def _write(rig: Any, result: TrackResult, output: str | Path, label: str, lateness: np.ndarray) -> tuple[str, str]:
-    from hilbench.recording.hdf5 import ChannelSpec, RecordingWriter
+def _write(rig: Any, result: TrackResult, output: str | Path, label: str) -> tuple[str, str]:
+    """A lock-step run, recorded when it is done (the fused loop runs in one go): the channels a run on
+    devices records (``lateness`` 0: a lock-step simulation is never late)."""
+    from hilbench.recording.hdf5 import RecordingWriter
+    from hilbench.runners.fixed_rate import law_channels, lateness_channel
 
     writer = RecordingWriter(output)
     channels = [c for c in rig.channels() if c.name in ("time", "input", "output") or c.name in result.aux]
-    channels += [ChannelSpec("reference", "um", "reference displacement"),
-                 ChannelSpec("error", "um", "tracking error: reference - output"),
-                 ChannelSpec("command", rig.actuator.unit, "compensator command before the safety path"),
-                 ChannelSpec("lateness", "s", "how late each sample of the fixed-rate loop was taken "
-                                                "(0: lock-step simulation)")]
+    channels += [lateness_channel(), *law_channels(rig.actuator.unit)]
     run = writer.begin_run(label, channels, experiment="track", excitation=result.compensator.get("reference", {}),
                            sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
-                           extra_attrs={"compensator": json.dumps(result.compensator, default=str)})
+                           extra_attrs={"compensator": json.dumps(result.compensator, default=str), "mode": "lockstep"})
     data = {"time": result.time, "input": result.input, "output": result.output, "reference": result.reference,
-            "error": result.error, "command": result.command, "lateness": lateness, **result.aux}
+            "error": result.error, "command": result.command, "lateness": np.zeros(result.time.size), **result.aux}
     try:
         run.append({c.name: data[c.name] for c in channels})
     except BaseException as exc:
         run.finish("failed", repr(exc))
         raise
-    extra = {"metrics": json.dumps(result.metrics), "health": json.dumps(result.health, default=str),
-             "degraded": bool(result.health.get("degraded", False))}
-    if result.reference_clipped is not None:
-        extra["reference_clipped"] = json.dumps(result.reference_clipped)
-    run.finish("complete", extra_attrs=extra)
+    run.finish("complete", extra_attrs=_finish_attrs(result))
     return str(output), run.group_name
 
 

@@ -25,6 +25,12 @@ and closes the run ``failed`` with the reason, keeping every sample before):
   itself (``rig.stop(False)`` through :class:`~hilbench.runners.faults.SafeStop`), then the loop ends
   with :class:`~hilbench.runners.faults.LoopStalled` when it gets control back.
 
+A closed loop (``law``, e.g. :class:`hilbench.online.tracking.CompensatorLaw`) runs in the same loop:
+the run's source is then the reference, and per sample the law turns it into the command
+(``law.command(r)``) before the safety path, then learns what was applied and measured
+(``law.commit(r, applied, row)``, ``row`` the sample's calibrated channels); ``reference``,
+``command`` (before the safety path) and ``error`` (reference - output) are recorded besides.
+
 The cyclic garbage collector is frozen for the loop (``gc.freeze``): the objects alive before the run
 are not scanned again, so collections stay short.
 """
@@ -37,7 +43,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -56,6 +62,23 @@ _EDGES = np.concatenate([[-np.inf, 0.0], np.logspace(-9, 2, 11 * 20 + 1), [np.in
 
 def lateness_channel() -> ChannelSpec:
     return ChannelSpec("lateness", "s", CANONICAL_CHANNELS["lateness"][1])
+
+
+class LoopLaw(Protocol):
+    """What a closed loop adds to the fixed-rate loop (see the module docstring)."""
+
+    def command(self, reference: float) -> float:
+        """The command for this sample's reference, before the rig's safety path."""
+
+    def commit(self, reference: float, applied: float, row: dict[str, float]) -> None:
+        """What was applied and measured (``row``: channel -> calibrated value) this sample."""
+
+
+def law_channels(unit: str) -> list[ChannelSpec]:
+    """The channels a closed loop records besides the rig's (``unit``: the actuator's)."""
+    return [ChannelSpec("reference", "um", CANONICAL_CHANNELS["reference"][1]),
+            ChannelSpec("command", unit, "compensator command before the safety path"),
+            ChannelSpec("error", "um", "tracking error: reference - output")]
 
 
 @dataclass
@@ -137,8 +160,10 @@ def run_fixed_rate(
     watchdog_periods: int | None = None,
     spin_s: float = DEFAULT_SPIN_S,
     on_chunk: Callable[[int], None] | None = None,
+    law: LoopLaw | None = None,
 ) -> tuple[int, LoopStats]:
     """Play one run sample by sample; returns (samples recorded, stats). Raises on a fault.
+    With ``law``, the run's source is a reference and the law computes each command (closed loop).
 
     ``safe.io_lock`` is held around each sample's device I/O, so the watchdog's ``rig.stop`` never
     talks to a device at the same time as the loop. ``stop`` is the deferred-interrupt flag, checked
@@ -172,6 +197,9 @@ def run_fixed_rate(
             plan.append((s.channel, s.source or s.channel, s.offset, s.scale, float(lo), float(hi)))
         reads.append((name, driver, device.read, plan))
     channels = [c for _, _, _, plan in reads for c, *_ in plan]
+    row: dict[str, float] = dict.fromkeys(channels, math.nan)  # this sample's values, for the law
+    law_command = law.command if law is not None else None
+    law_commit = law.commit if law is not None else None
     perf = time.perf_counter_ns
     sleep = time.sleep
     nan = math.nan
@@ -191,6 +219,7 @@ def run_fixed_rate(
                 break
             m = commands.shape[0]
             u = np.empty(m)
+            ucmd = np.empty(m) if law is not None else commands
             late = np.full(m, nan)
             buf = {c: np.empty(m) for c in channels}
             cols = [[buf[c] for c, *_ in plan] for _, _, _, plan in reads]
@@ -213,7 +242,13 @@ def run_fixed_rate(
                         if watchdog.tripped:
                             raise LoopStalled(act_name, f"{safe.note or 'watchdog tripped'} (loop resumed at "
                                                         f"sample {k})")
-                        value = apply_value(float(commands[j]))
+                        r = float(commands[j])
+                        if law_command is not None:
+                            r_cmd = law_command(r)
+                            ucmd[j] = r_cmd
+                        else:
+                            r_cmd = r
+                        value = apply_value(r_cmd)
                         try:
                             write(value)
                         except Exception as exc:
@@ -232,6 +267,9 @@ def run_fixed_rate(
                                     raise InterlockTripped(name, _interlock_text(
                                         name, driver, channel, source, values, v, lo, hi, rig, k))
                                 out[j] = v
+                                row[channel] = v
+                        if law_commit is not None:
+                            law_commit(r, value, row)
                     watchdog.last_ns = now
                     watchdog.sample = k
                 j = m
@@ -239,8 +277,11 @@ def run_fixed_rate(
                 # every sample before a fault is kept
                 if j:
                     t = (done + np.arange(j)) / fs
-                    run.append({"time": t, "input": u[:j], "lateness": late[:j],
-                                **{c: buf[c][:j] for c in channels}})
+                    data = {"time": t, "input": u[:j], "lateness": late[:j], **{c: buf[c][:j] for c in channels}}
+                    if law is not None:
+                        data.update(reference=commands[:j], command=ucmd[:j],
+                                    error=commands[:j] - buf["output"][:j])
+                    run.append(data)
                     stats.add(late[:j])
                     done += j
             if on_chunk is not None:

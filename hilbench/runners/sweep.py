@@ -41,7 +41,7 @@ from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.rig.rig import Rig
 from hilbench.runners.block import can_play, run_block
 from hilbench.runners.faults import DeviceFault, SafeStop, summary
-from hilbench.runners.fixed_rate import lateness_channel, run_fixed_rate
+from hilbench.runners.fixed_rate import LoopLaw, law_channels, lateness_channel, run_fixed_rate
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -120,6 +120,8 @@ def run_plan(
     mode: str | None = None,
     pace: bool = True,
     watchdog_periods: int | None = None,
+    law: LoopLaw | None = None,
+    run_attrs: dict[str, Any] | None = None,
 ) -> SweepResult:
     """Check the plan, then play each run on the rig into ``output`` (appended when it exists).
 
@@ -129,6 +131,12 @@ def run_plan(
     fixed-rate loop (and the rig's unrecorded ramps) run as fast as the devices answer: for emulated
     rigs in tests only, never for hardware. ``watchdog_periods``: the fixed-rate loop's watchdog
     trips after this many periods without a sample (default: 2 s worth).
+
+    ``law``: a closed loop (fixed-rate mode only): each run's excitation is then the reference (um)
+    the law turns into commands, so it is not checked against the actuator's limits (the law's
+    commands go through the safety path); the caller has brought the rig (and the law's memory) to
+    the first command, and ``law.finish_attrs(samples)``, when the law has it, adds to the run's
+    attributes whatever its status. ``run_attrs`` go into every run's attributes.
     """
     def emit(event: str, group: str, **fields: Any) -> None:
         if on_event is not None:
@@ -144,7 +152,10 @@ def run_plan(
     if mode == "fixed-rate" and rig.lockstep is not None:
         raise ValueError("fixed-rate mode needs per-sample devices; open a simulated rig with Rig(config, "
                          "lockstep=False) to step it sample by sample")
-    check_plan(runs, rig.actuator, rig.sample_rate_hz)
+    if law is not None and mode != "fixed-rate":
+        raise ValueError(f"a closed loop runs in fixed-rate mode, not {mode}")
+    if law is None:
+        check_plan(runs, rig.actuator, rig.sample_rate_hz)
     realtime = rig.config.realtime if realtime is None else realtime
     if chunk_samples is None:
         if mode == "lockstep":
@@ -156,6 +167,17 @@ def run_plan(
     writer = RecordingWriter(output)
     result = SweepResult(str(output))
     channels = rig.channels() + ([lateness_channel()] if mode == "fixed-rate" else [])
+    if law is not None:
+        channels += law_channels(rig.actuator.unit)
+    finish_attrs = getattr(law, "finish_attrs", None)
+
+    def law_attrs(done: int) -> dict[str, Any]:
+        if finish_attrs is None:
+            return {}
+        try:
+            return dict(finish_attrs(done))
+        except Exception as error:  # noqa: BLE001 - the run is closed with its status whatever the law says
+            return {"law_attrs_error": summary(error)}
     sweep_id = uuid.uuid4().hex
     previous_group = ""
     paced_before = rig.pace
@@ -172,7 +194,7 @@ def run_plan(
                     planned.label, channels, experiment=experiment, excitation=exc.describe(),
                     sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
                     extra_attrs={"sweep": sweep_id, "previous_run": previous_group,
-                                 "approach_from": rig.last_applied, "mode": mode},
+                                 "approach_from": rig.last_applied, "mode": mode, **(run_attrs or {})},
                 )
                 previous_group = run.group_name
                 n_total = exc.n_samples(rig.sample_rate_hz)
@@ -190,25 +212,27 @@ def run_plan(
                         progress(index, planned.label, done, n_total)
 
                 try:
-                    first = next(exc.chunks(rig.sample_rate_hz, 1))
+                    # a closed loop starts from where its caller brought the rig
+                    first = float(next(exc.chunks(rig.sample_rate_hz, 1))[0]) if law is None else rig.last_applied
                     try:
-                        rig.start_run(float(first[0]))
+                        rig.start_run(first)
                     except Exception as error:
                         if rig.lockstep is not None:
                             raise
                         raise DeviceFault(rig.actuator_name, rig.config.actuator.driver,
-                                          f"approach the run's first value {float(first[0]):g} "
+                                          f"approach the run's first value {first:g} "
                                           f"{rig.actuator.unit}", error) from error
                     if mode == "fixed-rate":
                         done, stats = run_fixed_rate(
                             rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
-                            watchdog_periods=watchdog_periods, on_chunk=on_chunk)
+                            watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law)
                         stats_attrs = stats.attrs()
                     elif mode == "block":
                         done = run_block(rig, exc, run, stop=stop, chunk_samples=chunk_samples, on_chunk=on_chunk)
                     else:
                         done = _run_lockstep(rig, exc, run, stop=stop, chunk_samples=chunk_samples,
                                              realtime=realtime, on_chunk=on_chunk)
+                    stats_attrs.update(law_attrs(done))
                     if stop:
                         note = safe.make_safe()
                         if not safe.ok:
@@ -226,20 +250,32 @@ def run_plan(
                         note = safe.make_safe()
                     finally:
                         done = run.n_samples
+                        stats_attrs.update(law_attrs(done))
                         reason = f"{summary(error)}; {note if safe.done else 'actuator not made safe'}\n\n" + \
                             "".join(traceback.format_exception(error))
                         run.finish("failed", reason, extra_attrs={**stats_attrs, "made_safe": bool(safe.ok)})
                         emit("run-ended", run.group_name, status="failed", samples=done)
                         result.runs.append(RunResult(planned.label, run.group_name, "failed", done, reason))
+                    # the command line names the run that keeps the samples (hilbench.cli.app.user_errors)
+                    recorded = f"{output} run {run.group_name} (failed; {note if safe.done else 'actuator not made safe'})"
                     if isinstance(error, DeviceFault):
                         # the caller sees the driver's own exception (DeviceLost, DeviceTimeout, ...);
                         # the recording's reason says which of the rig's devices it was
+                        _tell_recorded(error.error, recorded)
                         raise error.error from None
+                    _tell_recorded(error, recorded)
                     raise
             rig.stop(True)
     finally:
         rig.pace = paced_before
     return result
+
+
+def _tell_recorded(error: BaseException, recorded: str) -> None:
+    try:
+        error.hilbench_recorded = recorded  # type: ignore[attr-defined]
+    except (AttributeError, TypeError):  # an exception type with __slots__
+        pass
 
 
 def _run_lockstep(rig: Rig, exc: Any, run: Any, *, stop: Any, chunk_samples: int, realtime: bool,
