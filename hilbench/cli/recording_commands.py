@@ -38,7 +38,10 @@ def sweep(
     realtime: Optional[bool] = typer.Option(
         None, "--realtime/--no-realtime", help="Pace a simulated rig at its sample rate (default: the config's)."
     ),
-    check_only: bool = typer.Option(False, "--check", help="Check the plan against the limits and stop."),
+    check_only: bool = typer.Option(False, "--check", help="Check the plan against the limits and, on real devices, "
+                                    "time their round trip against the rig's rate; then stop (exit 2 when either fails)."),
+    allow_late: bool = typer.Option(False, "--allow-late", help="On real devices, run even when their measured round "
+                                    "trip cannot hold the rig's rate (the overruns are recorded)."),
     log: Optional[Path] = typer.Option(None, "--log", help="Append a JSON line per event (run start, flush, end)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
@@ -55,6 +58,7 @@ def sweep(
         plan_from_compact,
     )
     from hilbench.rig.config import load_rig
+    from hilbench.recording.hdf5 import loop_line
     from hilbench.rig.rig import Rig
     from hilbench.runners.sweep import run_plan
 
@@ -75,10 +79,16 @@ def sweep(
     totals = check_plan(runs, rig_config.actuator, rig_config.sample_rate_hz)
     if check_only:
         document = {"rig": rig_config.name, "plan_ok": True, **totals, "labels": [r.label for r in runs]}
+        if not rig_config.simulated:
+            document["round_trips"] = _timed_round_trips(rig_config, allow_late)
         if as_json:
             print_json(document)
         else:
             typer.echo(f"plan OK: {totals['runs']} runs, {totals['samples']} samples, {totals['duration_s']:.3f} s")
+            if "round_trips" in document:
+                rt = document["round_trips"]
+                typer.echo(f"devices OK at {rig_config.sample_rate_hz:g} Hz: round trip {rt['round_trip_p50_s'] * 1e3:.3g} ms "
+                           f"(p50), {rt['round_trip_p99_s'] * 1e3:.3g} ms (p99); at most {rt['max_rate_hz']:.4g} Hz")
         return
     out = output or default_output(rig_config.name)
     rig = Rig(rig_config)
@@ -92,7 +102,8 @@ def sweep(
     started = time.monotonic()
     try:
         with RunProgress(not quiet) as progress:
-            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_event=on_event)
+            result = run_plan(rig, runs, out, realtime=realtime, progress=progress, on_event=on_event,
+                              check_rate=not allow_late)
     finally:
         if log_file is not None:
             log_file.close()
@@ -106,14 +117,44 @@ def sweep(
         "runs": [{"name": r.group, "label": r.label, "status": r.status, "samples": r.samples, "reason": r.reason}
                  for r in result.runs],
     }
+    loops = _loop_figures(out, [r.group for r in result.runs])
+    for entry in document["runs"]:
+        if entry["name"] in loops:
+            entry["loop"] = loops[entry["name"]]
     if as_json:
         print_json(document)
     else:
         typer.echo(f"{out}: {len(result.runs)} runs, status {result.status}, {elapsed:.1f} s")
         for r in result.runs:
             typer.echo(f"  {r.group:40s} {r.status:9s} {r.samples:>10d} samples")
+            if r.group in loops:
+                typer.echo(f"      {loop_line(loops[r.group])}")
     if result.status != "complete":
         raise typer.Exit(1)
+
+
+def _timed_round_trips(rig_config: Any, allow_late: bool) -> dict[str, Any]:
+    """``sweep --check`` on real devices: open them, time their round trip (the actuator held where it
+    is), close them; refused (exit 2) when the rig's rate cannot be held, unless ``allow_late``."""
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.rate_check import require_rate, time_round_trips
+
+    with Rig(rig_config) as rig:
+        trips = time_round_trips(rig) if allow_late else require_rate(rig)
+    return trips.describe()
+
+
+def _loop_figures(path: Path, groups: list[str]) -> dict[str, dict[str, Any]]:
+    """The fixed-rate loop's timing figures of the given runs of a recording (none for other modes)."""
+    from hilbench.recording.hdf5 import Recording, loop_figures
+
+    if not groups or not Path(path).exists():
+        return {}
+    found = {}
+    for run in Recording(path):
+        if run.name in groups and run.attrs.get("loop") == "fixed-rate":
+            found[run.name] = loop_figures(run.attrs)
+    return found
 
 
 @app.command()
@@ -123,7 +164,7 @@ def show(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """List the runs of a recording: status, sample rate, samples, channels and units."""
-    from hilbench.recording.hdf5 import Recording
+    from hilbench.recording.hdf5 import Recording, loop_line
 
     summary = Recording(file).summary()
     if as_json:
@@ -137,6 +178,8 @@ def show(
                    f"({duration}), experiment {run['experiment']!r}")
         channels = ", ".join(f"{c['name']} [{c['units']}]" for c in run["channels"])
         typer.echo(f"      channels: {channels}")
+        if "loop" in run:
+            typer.echo(f"      {loop_line(run['loop'])}")
         if run["status"] not in ("complete",) and run["reason"]:
             typer.echo(f"      reason: {run['reason'].strip().splitlines()[-1]}")
 

@@ -41,6 +41,9 @@ def track(
     label: str = typer.Option("track", "--label", help="Run label in the recording."),
     allow_clip: bool = typer.Option(False, "--allow-clip", help="Run a reference that leaves the reachable output "
                                     "range clipped to it (recorded in the run), instead of refusing it."),
+    allow_late: bool = typer.Option(False, "--allow-late", help="On real devices, run even when their measured "
+                                    "round trip cannot hold the rig's rate (timed before anything moves; the "
+                                    "overruns are recorded)."),
     strict: bool = typer.Option(False, "--strict", help="Exit with status 3 when the run is degraded (health: "
                                 "samples at a limit or slew-limited > 1 %, or the error well above the model's own)."),
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
@@ -70,7 +73,7 @@ def track(
     with Rig(config) as opened:
         result = run_track(opened, model, reference, feedback=pid,
                            online=True if online else None, output=out, label=label, method=method,
-                           allow_clip=allow_clip)
+                           allow_clip=allow_clip, check_rate=not allow_late)
         try:
             opened.stop(True)
         except Exception:  # noqa: BLE001  (the run is recorded; a failing stop is reported, not fatal)
@@ -89,6 +92,10 @@ def track(
                + (" + PID" if feedback else "") + (" + online" if online else ""))
     typer.echo("  " + ", ".join(f"{k} {v:.4g}" for k, v in m.items()))
     typer.echo("  " + health_line(result.health))
+    if result.loop:
+        from hilbench.recording.hdf5 import loop_line
+
+        typer.echo("  " + loop_line(result.loop))
     if result.reference_clipped:
         c = result.reference_clipped
         typer.echo(f"  reference clipped: {c['samples']} samples ({c['share_pct']:.3g} %) to the reachable "

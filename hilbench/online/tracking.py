@@ -290,6 +290,7 @@ def track(
     precondition: bool = True,
     chunk_samples: int = 65536,
     allow_clip: bool = False,
+    check_rate: bool = False,
 ) -> TrackResult:
     """Track ``reference`` (um) on ``rig`` with the inverse of ``model`` (a fitted
     :class:`~hilbench.models.Model` or its JSON file); see the module docstring.
@@ -300,6 +301,8 @@ def track(
     actuator's memory so that the model's memory can match it. Writes a
     run to ``output`` (appended when it exists) when given. ``allow_clip``: run a reference that
     leaves the reachable output range clipped to it (else it is refused before the rig moves).
+    ``check_rate``: on per-sample devices, paced, the devices' round trips are timed first and a rate
+    they cannot hold is refused before the rig moves (:mod:`hilbench.runners.rate_check`).
     """
     from hilbench.models import Model
 
@@ -316,6 +319,13 @@ def track(
                        feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit)
     sensor = rig.config.sensor("output") if hasattr(rig, "config") else None
     ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
+    plant = getattr(rig.lockstep, "plant", None)
+    on_devices = plant is None or not hasattr(plant, "step_arrays")
+    trips = None
+    if on_devices and check_rate and rig.pace:
+        from hilbench.runners.rate_check import require_rate
+
+        trips = require_rate(rig).describe()
     if precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
@@ -323,9 +333,8 @@ def track(
     aux0 = _first_aux(rig, comp) if comp.channels else None
     first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
     _drive(rig, comp, first)
-    plant = getattr(rig.lockstep, "plant", None)
-    if plant is None or not hasattr(plant, "step_arrays"):
-        return _track_on_devices(rig, comp, ref, described, clipped, output, label, aux0)
+    if on_devices:
+        return _track_on_devices(rig, comp, ref, described, clipped, output, label, aux0, trips)
     # Lock-step simulation: the fused loop, on the rig's own safety state.
     rig.lockstep.start_run()
     approach_from = rig.last_applied
@@ -434,7 +443,7 @@ class CompensatorLaw:
 
 def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: dict[str, Any],
                       clipped: dict[str, Any] | None, output: str | Path | None, label: str,
-                      aux0: dict[str, float] | None) -> TrackResult:
+                      aux0: dict[str, float] | None, trips: dict[str, Any] | None = None) -> TrackResult:
     """Per-sample devices: the runner's fixed-rate loop (:mod:`hilbench.runners.fixed_rate`) with the
     compensator as its law, so a tracking run has what every experiment on a real rig has: the
     interlocks, the watchdog, Ctrl-C and SIGTERM held off to the end of a chunk, the recording streamed
@@ -444,7 +453,7 @@ def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: d
     import tempfile
 
     from hilbench.excitation.plan import PlannedRun
-    from hilbench.recording.hdf5 import Recording
+    from hilbench.recording.hdf5 import Recording, loop_figures
     from hilbench.runners.sweep import run_plan
 
     comp.warm_up(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
@@ -460,7 +469,8 @@ def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: d
         started = time.perf_counter()
         outcome = run_plan(rig, [PlannedRun(label, ReferenceSource(ref, described))], path,  # type: ignore[arg-type]
                            experiment="track", mode="fixed-rate", law=law, pace=rig.pace,
-                           run_attrs={"compensator": json.dumps(comp.describe(), default=str)})
+                           run_attrs={"compensator": json.dumps(comp.describe(), default=str),
+                                      **({"round_trips": json.dumps(trips)} if trips else {})})
         seconds = time.perf_counter() - started
         (done,) = outcome.runs
         if done.status == "aborted":
@@ -474,7 +484,7 @@ def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: d
                          described, clipped)
         result.limited = int(np.count_nonzero(result.command != result.input))
         result.seconds, result.approach_from = seconds, approach_from
-        result.loop = {k: run.attrs.get(k) for k in ("overruns", "lateness_p50_s", "lateness_p99_s", "lateness_max_s")}
+        result.loop = loop_figures(run.attrs)
         if output is not None:
             result.file, result.group = str(path), done.group
         return result

@@ -397,6 +397,7 @@ class Recording:
                     "n_samples": r.n_samples,
                     "duration_s": r.n_samples / r.sample_rate_hz if r.sample_rate_hz > 0 else None,
                     "excitation": r.excitation,
+                    **({"loop": loop_figures(r.attrs)} if r.attrs.get("loop") == "fixed-rate" else {}),
                     "channels": [
                         {"name": c, "units": r.units[c], "description": r.descriptions[c], "n_samples": r.lengths[c]}
                         for c in r.channels
@@ -405,3 +406,38 @@ class Recording:
                 for r in self.runs
             ],
         }
+
+
+#: a fixed-rate run with more overruns than this (percent of its samples) is marked ``late``
+LATE_OVERRUN_PCT = 1.0
+#: what a fixed-rate loop's run keeps about its timing (hilbench.runners.fixed_rate.LoopStats)
+LOOP_KEYS = ("paced", "overruns", "overrun_pct", "late", "lateness_p50_s", "lateness_p99_s", "lateness_max_s")
+
+
+def loop_figures(attrs: Any) -> dict[str, Any]:
+    """A fixed-rate run's timing figures from its attributes (numpy scalars as Python values)."""
+    out: dict[str, Any] = {}
+    for key in LOOP_KEYS:
+        if key in attrs:
+            value = attrs[key]
+            out[key] = value.item() if hasattr(value, "item") else value
+    return out
+
+
+def loop_line(figures: dict[str, Any]) -> str:
+    """One line of a fixed-rate run's timing: lateness p50/p99/max, overruns, and whether it was late."""
+    if not figures.get("paced", True):
+        return "loop: unpaced (as fast as the devices answered; no schedule)"
+
+    def t(s: Any) -> str:
+        s = float(s)
+        if s != s:
+            return "n/a"
+        return f"{s * 1e6:.3g} us" if s < 1e-3 else f"{s * 1e3:.3g} ms" if s < 1.0 else f"{s:.3g} s"
+
+    text = (f"loop: lateness p50 {t(figures.get('lateness_p50_s', float('nan')))}, p99 "
+            f"{t(figures.get('lateness_p99_s', float('nan')))}, max {t(figures.get('lateness_max_s', float('nan')))}; "
+            f"{int(figures.get('overruns', 0))} overruns ({float(figures.get('overrun_pct', 0.0)):.3g} %)")
+    if figures.get("late"):
+        text += f": LATE, the devices did not keep the rate (more than {LATE_OVERRUN_PCT:g} % of samples a period late)"
+    return text

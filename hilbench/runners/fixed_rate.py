@@ -7,10 +7,13 @@ microseconds on Linux; spinning is exact but burns the core). Then, holding the 
 command goes through the rig's one safety path (:meth:`~hilbench.rig.rig.Rig.apply_value`: clamp,
 slew limit), is written to the actuator, and every sensor device is read once.
 
-Recorded per sample besides ``time``, ``input`` (the value applied) and the sensor channels:
+Recorded per sample besides ``input`` (the value applied) and the sensor channels: ``time`` (s),
+when the sample was taken, measured from the first deadline (the schedule, ``k / fs``, is in the
+run's ``schedule`` attribute; a fit or a plot of a late run sees the rates that happened), and
 ``lateness`` (s): how long after its deadline the sample was taken. A sample later than one period
-is an overrun; the run's attrs keep ``overruns``, ``lateness_p50_s``, ``lateness_p99_s`` (from a
-log-spaced histogram, 5 % bins) and ``lateness_max_s``. With ``pace=False`` (emulated rigs in tests,
+is an overrun; the run's attrs keep ``overruns``, ``overrun_pct``, ``late`` (more than
+``LATE_OVERRUN_PCT`` % overran), ``lateness_p50_s``, ``lateness_p99_s`` (from a log-spaced
+histogram, 5 % bins) and ``lateness_max_s``. With ``pace=False`` (emulated rigs in tests,
 whose plant advances one sample per write whatever the time) the loop runs as fast as the devices
 answer and ``lateness`` is NaN: there is no schedule to be late for.
 
@@ -47,7 +50,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from hilbench.recording.hdf5 import CANONICAL_CHANNELS, ChannelSpec, RunWriter
+from hilbench.recording.hdf5 import CANONICAL_CHANNELS, LATE_OVERRUN_PCT, ChannelSpec, RunWriter
 from hilbench.rig.rig import Rig
 from hilbench.runners.faults import DeviceFault, InterlockTripped, LoopStalled, SafeStop
 
@@ -107,7 +110,11 @@ class LoopStats:
         return float(min(hi, self.max_s))  # the bin's upper edge, never above the largest seen
 
     def attrs(self) -> dict[str, Any]:
-        return {"loop": "fixed-rate", "paced": self.paced, "overruns": self.overruns,
+        share = 100.0 * self.overruns / self.samples if self.samples else 0.0
+        return {"loop": "fixed-rate", "paced": self.paced, "overruns": self.overruns, "overrun_pct": share,
+                "late": bool(share > LATE_OVERRUN_PCT),
+                "time": "measured" if self.paced else "schedule",
+                "schedule": f"sample k due at k / {1.0 / self.period_s:g} Hz from the first deadline",
                 "lateness_p50_s": self.quantile(0.5), "lateness_p99_s": self.quantile(0.99),
                 "lateness_max_s": self.max_s}
 
@@ -221,6 +228,7 @@ def run_fixed_rate(
             u = np.empty(m)
             ucmd = np.empty(m) if law is not None else commands
             late = np.full(m, nan)
+            taken = np.empty(m)  # when each sample was taken, s from the first deadline
             buf = {c: np.empty(m) for c in channels}
             cols = [[buf[c] for c, *_ in plan] for _, _, _, plan in reads]
             j = 0
@@ -236,8 +244,10 @@ def run_fixed_rate(
                         while now < deadline:
                             now = perf()
                         late[j] = (now - deadline) * 1e-9
+                        taken[j] = (now - t0) * 1e-9
                     else:
                         now = perf()
+                        taken[j] = k / fs  # unpaced: no schedule to keep, the sample index is the time
                     with lock:
                         if watchdog.tripped:
                             raise LoopStalled(act_name, f"{safe.note or 'watchdog tripped'} (loop resumed at "
@@ -276,8 +286,7 @@ def run_fixed_rate(
             finally:
                 # every sample before a fault is kept
                 if j:
-                    t = (done + np.arange(j)) / fs
-                    data = {"time": t, "input": u[:j], "lateness": late[:j], **{c: buf[c][:j] for c in channels}}
+                    data = {"time": taken[:j], "input": u[:j], "lateness": late[:j], **{c: buf[c][:j] for c in channels}}
                     if law is not None:
                         data.update(reference=commands[:j], command=ucmd[:j],
                                     error=commands[:j] - buf["output"][:j])

@@ -23,6 +23,7 @@ Whatever the mode:
 
 from __future__ import annotations
 
+import json
 import signal
 import threading
 import time
@@ -122,6 +123,7 @@ def run_plan(
     watchdog_periods: int | None = None,
     law: LoopLaw | None = None,
     run_attrs: dict[str, Any] | None = None,
+    check_rate: bool = False,
 ) -> SweepResult:
     """Check the plan, then play each run on the rig into ``output`` (appended when it exists).
 
@@ -137,6 +139,11 @@ def run_plan(
     commands go through the safety path); the caller has brought the rig (and the law's memory) to
     the first command, and ``law.finish_attrs(samples)``, when the law has it, adds to the run's
     attributes whatever its status. ``run_attrs`` go into every run's attributes.
+
+    ``check_rate``: a paced fixed-rate run first times the devices' round trips (the actuator held
+    still) and is refused before anything moves when they cannot hold the rig's rate
+    (:func:`hilbench.runners.rate_check.require_rate`); the command line does this unless
+    ``--allow-late``.
     """
     def emit(event: str, group: str, **fields: Any) -> None:
         if on_event is not None:
@@ -157,6 +164,10 @@ def run_plan(
     if law is None:
         check_plan(runs, rig.actuator, rig.sample_rate_hz)
     realtime = rig.config.realtime if realtime is None else realtime
+    if check_rate and mode == "fixed-rate" and pace:
+        from hilbench.runners.rate_check import require_rate
+
+        run_attrs = {**(run_attrs or {}), "round_trips": json.dumps(require_rate(rig).describe())}
     if chunk_samples is None:
         if mode == "lockstep":
             # Real time: 50 ms chunks keep the pacing smooth and the flushes frequent.

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -115,3 +117,15 @@ def test_a_paced_fixed_rate_run_records_lateness_and_counts_overruns(tmp_path):
     assert run.attrs["overruns"] == int(np.count_nonzero(lateness > 1e-3))
     assert run.attrs["lateness_max_s"] == pytest.approx(lateness.max())
     assert run.attrs["lateness_p50_s"] <= run.attrs["lateness_p99_s"] <= run.attrs["lateness_max_s"]
+    # time told honestly: each sample's time is when it was taken (its deadline plus its lateness),
+    # the schedule is in the attributes; more than 1 % overruns marks the run late, and show says so
+    t = run.data()["time"]
+    np.testing.assert_allclose(t, np.arange(1001) / 1000.0 + lateness, rtol=0, atol=1e-9)
+    assert run.attrs["time"] == "measured" and "k / 1000 Hz" in run.attrs["schedule"]
+    share = 100.0 * run.attrs["overruns"] / 1001
+    assert run.attrs["overrun_pct"] == pytest.approx(share) and bool(run.attrs["late"]) == (share > 1.0)
+    shown = subprocess.run([sys.executable, "-m", "hilbench.cli", "show", str(out)], capture_output=True, text=True,
+                           timeout=60)
+    assert shown.returncode == 0
+    (line,) = [x.strip() for x in shown.stdout.splitlines() if x.strip().startswith("loop: lateness p50")]
+    assert f"{run.attrs['overruns']} overruns" in line and (("LATE" in line) == bool(run.attrs["late"]))

@@ -1,0 +1,91 @@
+"""A rate the devices cannot hold is refused before anything moves (issue 59, "time told honestly"):
+the Modbus AIO + Keyence template pointed at its emulators the way a user would (the urls that
+`hilbench emulate` prints, copied into the config), then `hilbench sweep --check` from another
+process. The figures are this machine's; what is asserted is the logic: a rate far above any
+Python round trip is refused naming the measured round trip and the rate the devices can hold, and a
+rate well inside it passes.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hilbench.rig.emulation import start_emulators
+from hilbench.rig.config import load_rig
+from hilbench.rig.rig import Rig
+from hilbench.runners.rate_check import HEADROOM, RoundTrips, _round_down, time_round_trips
+from tests.runners.emulated import RIGS
+
+TEMPLATE = RIGS["modbus-keyence"]
+PLAN = "sine:amplitude=1,frequency_hz=1,cycles=1"
+
+
+def _config_for(emu, rate_hz: float, folder: Path) -> Path:
+    """The template with the emulators' urls in its device tables and the given sample rate."""
+    text = TEMPLATE.read_text(encoding="utf-8")
+    for name, settings in emu.settings.items():
+        if "url" not in settings:
+            continue
+        table = re.search(rf"^\[devices\.{re.escape(name)}\]$(.*?)(?=^\[)", text, flags=re.S | re.M)
+        assert table is not None, name
+        body = re.sub(r'^url = ".*"$', f'url = "{settings["url"]}"', table.group(1), count=1, flags=re.M)
+        text = text[:table.start(1)] + body + text[table.end(1):]
+    text = re.sub(r"^(\[rig\]\n)", rf"\1sample_rate_hz = {rate_hz!r}\n", text, count=1, flags=re.M)
+    path = folder / "rig.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _sweep_check(config: Path, *extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "hilbench.cli", "sweep", str(config), "--check", "-e", PLAN, *extra],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_sweep_check_refuses_a_rate_the_devices_cannot_hold_and_passes_one_they_can(tmp_path):
+    with start_emulators(load_rig(TEMPLATE)) as emu:
+        fast = _sweep_check(_config_for(emu, 50000.0, tmp_path))
+        assert fast.returncode == 2, fast.stderr
+        line = fast.stderr.strip()
+        assert "\n" not in line and line.startswith("error: ")
+        assert "sample_rate_hz = 50000 cannot be held" in line and "round trip takes" in line
+        assert "aio" in line and "laser" in line  # each device's time
+        held = float(re.search(r"can hold at most ([0-9.e+]+) Hz", line).group(1))
+        assert 0 < held < 50000.0
+        assert re.search(r"set sample_rate_hz <= [0-9.e+]+ in the rig config, or --allow-late", line)
+        # a tenth of what they can hold passes, and says what it measured
+        slow = _sweep_check(_config_for(emu, float(_round_down(held / 10)), tmp_path), "--json")
+        assert slow.returncode == 0, slow.stderr
+        document = json.loads(slow.stdout)
+        assert document["plan_ok"] and set(document["round_trips"]["devices"]) == {"aio", "laser"}
+        # --allow-late: the check times and reports, and does not refuse
+        late = _sweep_check(_config_for(emu, 50000.0, tmp_path), "--allow-late", "--json")
+        assert late.returncode == 0 and json.loads(late.stdout)["round_trips"]["max_rate_hz"] < 50000.0
+
+
+def test_timing_holds_the_actuator_still(tmp_path):
+    with start_emulators(load_rig(TEMPLATE)) as emu:
+        with Rig(emu.config_for_emulators()) as rig:
+            before = list(emu.emulators["aio"].ao_writes)
+            trips = time_round_trips(rig, samples=50)
+        writes = emu.emulators["aio"].ao_writes[len(before):]
+    assert len(writes) == 50 and len(set(writes)) == 1  # the same (rest) value every time
+    assert trips.total_s.shape == (50,) and set(trips.per_device_s) == {"aio", "laser"}
+    assert np.all(trips.total_s >= trips.per_device_s["aio"])
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_rate_held_is_the_headroom_over_the_p99_and_rounds_down(seed):
+    rng = np.random.default_rng(seed)
+    total = rng.lognormal(np.log(rng.uniform(1e-5, 1e-2)), 0.3, 300)
+    trips = RoundTrips(300, total, {"a": total * 0.4, "b": total * 0.6})
+    assert trips.max_rate_hz == pytest.approx(HEADROOM / np.quantile(total, 0.99))
+    assert trips.slowest == "b"
+    r = _round_down(trips.max_rate_hz)
+    assert 0.9 * trips.max_rate_hz <= r <= trips.max_rate_hz
