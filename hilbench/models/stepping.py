@@ -13,7 +13,9 @@
 :func:`model_block`, so a block of n samples equals n steps. Both are ``@njit(cache=True)`` and take
 only arrays and scalars, so a compiled closed loop (model step + :func:`hilbench.sim.kernels.plant_step`
 per sample) calls them directly; from Python one step costs one dispatcher call with five arguments.
-``model_step`` is inlined into its numba callers and compiled without NRT refcounting (``_nrt=False``,
+``model_step`` is inlined into its numba callers (the compensator's kernels call a non-inlined copy:
+typing the whole model again at each of their call sites cost ~40 s of a cold compile, and a call
+measured no slower there) and compiled without NRT refcounting (``_nrt=False``,
 it allocates nothing): a compiled caller should also be ``_nrt=False``, or each call pays an
 atomic incref/decref per array argument (see :func:`hilbench.sim.kernels.plant_step`).
 
