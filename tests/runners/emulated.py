@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -85,3 +86,21 @@ def first_line(reason: str) -> str:
 
 def recorded(path: Path) -> list[Any]:
     return list(Recording(path))
+
+
+def config_file(emu: EmulatedRig, template: Path, folder: Path, rate_hz: float | None = None) -> Path:
+    """A real-rig config as a user writes it to reach the emulators: the template with the urls that
+    `hilbench emulate` prints copied into its device tables (and ``sample_rate_hz`` when given)."""
+    text = template.read_text(encoding="utf-8")
+    for name, settings in emu.settings.items():
+        if "url" not in settings:
+            continue
+        table = re.search(rf"^\[devices\.{re.escape(name)}\]$(.*?)(?=^\[)", text, flags=re.S | re.M)
+        assert table is not None, name
+        body = re.sub(r'^url = ".*"$', f'url = "{settings["url"]}"', table.group(1), count=1, flags=re.M)
+        text = text[:table.start(1)] + body + text[table.end(1):]
+    if rate_hz is not None:
+        text = re.sub(r"^(\[rig\]\n)", rf"\1sample_rate_hz = {rate_hz!r}\n", text, count=1, flags=re.M)
+    path = folder / "rig.toml"
+    path.write_text(text, encoding="utf-8")
+    return path

@@ -21,26 +21,14 @@ from hilbench.rig.emulation import start_emulators
 from hilbench.rig.config import load_rig
 from hilbench.rig.rig import Rig
 from hilbench.runners.rate_check import HEADROOM, RoundTrips, _round_down, time_round_trips
-from tests.runners.emulated import RIGS
+from tests.runners.emulated import RIGS, config_file
 
 TEMPLATE = RIGS["modbus-keyence"]
 PLAN = "sine:amplitude=1,frequency_hz=1,cycles=1"
 
 
 def _config_for(emu, rate_hz: float, folder: Path) -> Path:
-    """The template with the emulators' urls in its device tables and the given sample rate."""
-    text = TEMPLATE.read_text(encoding="utf-8")
-    for name, settings in emu.settings.items():
-        if "url" not in settings:
-            continue
-        table = re.search(rf"^\[devices\.{re.escape(name)}\]$(.*?)(?=^\[)", text, flags=re.S | re.M)
-        assert table is not None, name
-        body = re.sub(r'^url = ".*"$', f'url = "{settings["url"]}"', table.group(1), count=1, flags=re.M)
-        text = text[:table.start(1)] + body + text[table.end(1):]
-    text = re.sub(r"^(\[rig\]\n)", rf"\1sample_rate_hz = {rate_hz!r}\n", text, count=1, flags=re.M)
-    path = folder / "rig.toml"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return config_file(emu, TEMPLATE, folder, rate_hz)
 
 
 def _sweep_check(config: Path, *extra: str) -> subprocess.CompletedProcess:
