@@ -46,8 +46,9 @@ def fit_(
     test: list[str] = typer.Option(
         [], "--test", metavar="RUN", help="Run that validates entirely. Repeatable. Without --train, the other runs train.",
     ),
-    train_fraction: float = typer.Option(
-        0.7, "--train-fraction", help="Without --train/--test: the first part of every run that trains (0-1]; the rest validates.",
+    train_fraction: Optional[float] = typer.Option(
+        None, "--train-fraction", help="Without --train/--test: the first part of every run that trains (0-1]; the "
+        "rest validates (default 0.7). A saved model (--model FIT.json) is scored on whole runs unless this is given.",
     ),
     output: Optional[Path] = typer.Option(
         None, "--output", "-o", metavar="FIT.json", help="Write the fitted model (spec, parameters with units, "
@@ -62,7 +63,8 @@ def fit_(
     """Fit a model to recordings and report its error on training and validation data.
 
     By default the first 70 % of every run trains and the last 30 % validates; --train/--test
-    give whole runs roles instead. Runs of one file are chained: the model's memory carries over
+    give whole runs roles instead. A saved model (--model FIT.json) is not refitted: it is scored on
+    every run, whole (or on the --test runs), as one figure. Runs of one file are chained: the model's memory carries over
     from one run to the next, as the actuator's did. Errors are free-run simulation errors, in the
     output unit (um), mse in its square, the *_pct keys in percent.
     """
@@ -72,6 +74,11 @@ def fit_(
     if output is not None and is_model_file(model):
         raise UserError("-o writes a fitted model, but --model names a saved one, which is evaluated, not refitted",
                         where="-o", hint="use --json to keep the evaluation, or give a spec to refit")
+    if train and is_model_file(model):
+        raise UserError("a saved model is scored, not trained: there is nothing for --train runs to do", where="--train",
+                        hint="--test RUN scores the named runs only; without it every run is scored")
+    if train_fraction is None and not is_model_file(model):
+        train_fraction = 0.7
 
     def note(message: str) -> None:
         if not quiet:

@@ -26,16 +26,20 @@ def fit_report_lines(result: Any) -> list[str]:
         lines.append(f"weights [{y_unit}]: " + ", ".join(f"{w['name']}={w['value']:.4g}" for w in weights))
     else:
         lines.append(f"weights: {len(weights)} (see -o FIT.json or --json)")
-    lines.append(f"{'metric':<22s}{'train':>14s}{'validation':>14s}")
+    # a saved model scored on whole runs: one figure (nothing trained); else training and validation
+    roles = ("validation",) if not result.refitted and result.metrics["train"]["n"] == 0 else ("train", "validation")
+    names = {"train": "train", "validation": "scored" if roles == ("validation",) else "validation"}
+    lines.append(f"{'metric':<22s}" + "".join(f"{names[r]:>14s}" for r in roles))
     for key in METRIC_KEYS:
         label = f"{key} [{metric_unit(key, y_unit)}]"
-        cells = [result.metrics[role][key] for role in ("train", "validation")]
+        cells = [result.metrics[role][key] for role in roles]
         lines.append(f"{label:<22s}" + "".join(f"{c:>14.5g}" if c == c else f"{'-':>14s}" for c in cells))
-    lines.append(f"{'samples':<22s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in ("train", "validation")))
+    lines.append(f"{'samples':<22s}" + "".join(f"{result.metrics[r]['n']:>14d}" for r in roles))
     lines.append("runs:")
     for r in result.runs:
-        rmse = "  ".join(f"{role} rmse {m['rmse']:.4g}" for role, m in r.metrics.items() if m)
-        lines.append(f"  {r.key:<36s} {r.role:<17s} {rmse}")
+        rmse = "  ".join(f"{names.get(role, role)} rmse {m['rmse']:.4g}" for role, m in r.metrics.items() if m)
+        role = names.get(r.role, r.role) if roles == ("validation",) else r.role
+        lines.append(f"  {r.key:<36s} {role:<17s} {rmse}")
     info = result.fit_info()
     if result.refitted:
         n_eval = info["evaluations"]

@@ -163,6 +163,7 @@ class FitResult:
             "fit": self.fit_info(),
             "fitted_on": self.fitted_on,
             "split": self.split,
+            **({"scored": self.metrics["validation"]} if not self.refitted else {}),
             "units": {"input": self.input_unit, "output": self.output_unit},
             "notes": self.notes,
         })
@@ -306,18 +307,33 @@ def evaluate(
     *,
     train: Sequence[str] | None = None,
     test: Sequence[str] | None = None,
-    train_fraction: float = 0.7,
+    train_fraction: float | None = None,
     loaded_from: str | None = None,
 ) -> FitResult:
-    """Score an already fitted ``model`` on recordings without refitting (same roles as :func:`fit`)."""
+    """Score an already fitted ``model`` on recordings without refitting.
+
+    Nothing is trained, so by default every kept row of every run is scored, as one figure (the
+    ``validation`` role, ``scored`` in the JSON); ``test`` scores the named runs only. Given
+    ``train`` or ``train_fraction``, the rows get the roles :func:`fit` would give them (what a
+    diagnosis does: its candidates are refitted on that split, and the saved model is compared on it)."""
     dataset = as_dataset(path_or_paths)
     notes = list(dataset.notes)
     runs, u_unit, y_unit = dataset.fit_runs(), dataset.input_unit, dataset.output_unit
     _check_aux(model, runs)
-    split = assign_roles(runs, train, test, train_fraction, dataset.keep)
-    if SWEPT in split:
-        notes.append(f"split: {split}")
-    _validation_note(runs, notes)
+    if train_fraction is None and not train:
+        split = assign_roles(runs, None, test, 1.0, dataset.keep)
+        for r in runs:
+            if test:
+                r.train = np.zeros(len(r.data), bool)
+            else:  # no selectors: the whole of every run is scored
+                r.validation, r.train = r.train, np.zeros(len(r.data), bool)
+        scored = [r.key for r in runs if r.validation.any()]
+        split = (f"{'runs ' + ', '.join(scored) if test else 'every run, whole,'} scored; nothing refitted")
+    else:
+        split = assign_roles(runs, train, test, 0.7 if train_fraction is None else train_fraction, dataset.keep)
+        if SWEPT in split:
+            notes.append(f"split: {split}")
+        _validation_note(runs, notes)
     overall = _score(runs, model)
     return FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,
                      input_unit=u_unit, notes=notes)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import shutil
 import textwrap
 from pathlib import Path
@@ -218,13 +219,38 @@ def test_saved_fit_loads_and_evaluates_without_refitting(pi_h5, tmp_path):
     assert [(p["name"], p["unit"]) for p in saved["parameters"]["shape"]] == [("seconds", "s")]
     assert {w["unit"] for w in saved["parameters"]["weights"]} == {"um"}
 
+    # evaluated, not refitted: every run scored whole, as one figure (nothing is trained)
     loaded = run_ok("fit", str(pi_h5), "--model", str(fit_json), "-q")
     assert loaded["fit"]["refitted"] is False and loaded["fit"]["loaded_from"] == str(fit_json)
     assert loaded["fit"]["seconds"] == fitted["fit"]["seconds"]  # the original fit's, not a new one
     assert loaded["fitted_on"] == saved["fitted_on"]
+    assert loaded["metrics"]["train"]["n"] == 0 and loaded["scored"] == loaded["metrics"]["validation"]
+    assert loaded["scored"]["n"] == fitted["metrics"]["train"]["n"] + fitted["metrics"]["validation"]["n"]
+    assert "every run, whole, scored" in loaded["split"]
+    assert all(r["samples"]["train"] == 0 for r in loaded["runs"])
+    # the whole is the two parts of the fit's split together (rms: pooled in quadrature)
+    parts = [(fitted["metrics"][r]["rmse"], fitted["metrics"][r]["n"]) for r in ("train", "validation")]
+    pooled = math.sqrt(sum(e * e * n for e, n in parts) / sum(n for _, n in parts))
+    assert loaded["scored"]["rmse"] == pytest.approx(pooled, rel=1e-9)
+    # with --train-fraction the fit's own split and figures come back
+    split = run_ok("fit", str(pi_h5), "--model", str(fit_json), "--train-fraction", "0.7", "-q")
     for role in ("train", "validation"):
         for key in METRIC_KEYS:
-            assert loaded["metrics"][role][key] == pytest.approx(fitted["metrics"][role][key], rel=1e-9, abs=1e-12)
+            assert split["metrics"][role][key] == pytest.approx(fitted["metrics"][role][key], rel=1e-9, abs=1e-12)
+    # --test scores the named run only
+    one = run_ok("fit", str(pi_h5), "--model", str(fit_json), "--test", "2", "-q")
+    assert [r["samples"]["validation"] > 0 for r in one["runs"]] == [False, True] and one["metrics"]["train"]["n"] == 0
+    # and text output: one column, "scored"
+    text = CliRunner().invoke(app, ["fit", str(pi_h5), "--model", str(fit_json), "-q"]).stdout
+    header = next(line for line in text.splitlines() if line.startswith("metric"))
+    assert header.split() == ["metric", "scored"]
+
+
+def test_a_saved_model_is_not_trained(pi_h5, tmp_path):
+    fit_json = tmp_path / "fit.json"
+    run_ok("fit", str(pi_h5), "--model", "pi", "-o", str(fit_json), "-q")
+    line = run_error("fit", str(pi_h5), "--model", str(fit_json), "--train", "1")
+    assert "--train" in line and "scored, not trained" in line
 
 
 def test_saved_model_reproduces_the_simulation(pi_h5, tmp_path):
