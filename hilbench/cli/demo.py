@@ -15,7 +15,7 @@ from hilbench.cli.app import (
     show_progress,
     user_errors,
 )
-from hilbench.cli.summaries import diagnosis_lines
+from hilbench.cli.summaries import diagnosis_summary_lines
 
 
 @app.command()
@@ -76,7 +76,7 @@ def demo(
     for r in summary["runs"]:
         typer.echo(f"  {r['name']:36s} {r['status']:9s} {r['n_samples']:>8d} samples")
     typer.echo("")
-    for line in diagnosis_lines(diagnosis.to_json()):
+    for line in diagnosis_summary_lines(diagnosis.to_json()):
         typer.echo(line)
     typer.echo("")
     typer.echo(f"report: {report}")

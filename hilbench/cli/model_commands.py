@@ -13,7 +13,7 @@ from hilbench.cli.app import (
     show_progress,
     user_errors,
 )
-from hilbench.cli.summaries import diagnosis_lines, fit_report_lines
+from hilbench.cli.summaries import diagnosis_lines, diagnosis_summary_lines, fit_report_lines
 from hilbench.errors import UserError
 
 
@@ -131,6 +131,8 @@ def diagnose(
     report: Optional[Path] = typer.Option(None, "--report", metavar="DIR",
                                           help="Write a self-contained HTML report (DIR/report.html)."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar on stderr."),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="Every candidate's explanation and failed checks "
+                                 "in full, and more of where the error lies (the compact view fits one screen)."),
     jobs: Optional[int] = typer.Option(None, "--jobs", "-j", metavar="N",
                                        help="Worker processes for the refits of each round (default: one per core, "
                                        "at most 8; the result does not depend on it)."),
@@ -165,7 +167,7 @@ def diagnose(
         if page is not None:
             typer.echo(f"report: {page}", err=True)
         return
-    for line in diagnosis_lines(document):
+    for line in (diagnosis_lines if verbose else diagnosis_summary_lines)(document):
         typer.echo(line)
     if page is not None:
         typer.echo(f"report: {page}")

@@ -78,8 +78,65 @@ def _measured(value: Any) -> str:
     return f"{value:.3g}" if isinstance(value, (int, float)) else str(value)
 
 
+#: the longest phrase of a candidate's line in the compact output (characters)
+PHRASE_CHARS = 110
+
+
+def _phrase(text: str, limit: int = PHRASE_CHARS, first_clause: bool = True) -> str:
+    """The first clause of a sentence (up to its first ';' or ': '), cut at a word within ``limit``."""
+    for stop in ("; ", ": ") if first_clause else ():
+        cut = text.find(stop)
+        if cut > 20:
+            text = text[:cut]
+    text = " ".join(text.split())
+    if len(text) <= limit:
+        return text
+    return text[:limit].rsplit(" ", 1)[0] + " ..."
+
+
+def diagnosis_summary_lines(d: dict[str, Any]) -> list[str]:
+    """The diagnosis in one screen: the model's error, where it lies (top three), the verdict, and one
+    line per candidate: found or refused, its validation gain, one phrase of why (for a refused one the
+    check that failed, measured against required). ``--verbose`` prints :func:`diagnosis_lines`."""
+    val, trn = d["metrics"]["validation"], d["metrics"]["train"]
+    lines = [f"model: {d['spec']}   validation rmse {val['rmse']:.4g} (erms {val['erms_pct']:.3g} % of range), "
+             f"training {trn['rmse']:.4g}"]
+    for note in d.get("notes", []):
+        lines.append(f"note: {_phrase(note, 160)}")
+    where = sorted(d["where"], key=lambda e: -e["share"])[:3]
+    if where:
+        lines.append("error lies most in: " + "; ".join(
+            f"{e['kind']} {range_text(e['range'])} ({100 * e['share']:.0f} % of it in "
+            f"{100 * e.get('fraction_of_rows', float('nan')):.0f} % of rows)" for e in where))
+    found = [e for e in d["effects"] if e["significant"]]
+    if found:
+        best = found[0]
+        lines.append(f"verdict: {best['effect']} is missing (validation rmse {-100 * best['expected_gain']:+.1f} % "
+                     f"with it); --add {best['effect'].split('+')[0]} or --auto adds it")
+    else:
+        lines.append("verdict: no missing effect is significant" + (" (some could not be tested)" if d["untestable"] else ""))
+    if d["effects"]:
+        width = max(16, *(len(e["effect"]) for e in d["effects"]))
+        lines.append(f"  {'candidate':<{width}s} {'verdict':<8s} {'gain':>7s}  why")
+        for e in d["effects"]:
+            failed = (e.get("evidence") or {}).get("failed_checks") or []
+            if e["significant"] or not failed:
+                why = _phrase(e["explanation"])
+            else:
+                why = _phrase(failed[0]["text"], 2 * PHRASE_CHARS, first_clause=False)  # measured vs required
+            verdict = "found" if e["significant"] else "refused"
+            lines.append(f"  {e['effect']:<{width}s} {verdict:<8s} {100 * e['expected_gain']:6.1f}%  {why}")
+    else:
+        lines.append("  no effect testable")
+    for u in d["untestable"]:
+        lines.append(f"  {u['effect']:<16s} untestable: {_phrase(u['reason'])}")
+    if d.get("steps"):
+        lines.append("steps: " + " -> ".join(f"{s['spec']} ({s['validation']['rmse']:.4g})" for s in d["steps"]))
+    return lines
+
+
 def diagnosis_lines(d: dict[str, Any]) -> list[str]:
-    """Human summary of a diagnosis document (the --json one)."""
+    """The diagnosis check by check (``diagnose --verbose``)."""
     val = d["metrics"]["validation"]
     trn = d["metrics"]["train"]
     lines = [f"model: {d['spec']}   rmse train {trn['rmse']:.4g}, validation {val['rmse']:.4g} "

@@ -347,7 +347,12 @@ def test_cli_diagnose_json_and_text(tmp_path):
     assert doc["steps"][0]["added"] is None and doc["steps"][1]["added"] == "hysteresis"
     assert doc["steps"][-1]["validation"]["rmse"] < doc["steps"][0]["validation"]["rmse"] / 3
     text = runner.invoke(app, ["diagnose", str(out), "--model", "linear"])
-    assert text.exit_code == 0 and "hysteresis" in text.stdout and "significant" in text.stdout
+    assert text.exit_code == 0 and "verdict: hysteresis is missing" in text.stdout
+    lines = text.stdout.splitlines()
+    assert len(lines) < 40 and max(len(line) for line in lines) <= 200  # one screen
+    (row,) = [ln for ln in lines if ln.split()[:2] == ["hysteresis", "found"]]
+    verbose = runner.invoke(app, ["diagnose", str(out), "--model", "linear", "--verbose"])
+    assert verbose.exit_code == 0 and "effects (best first):" in verbose.stdout and "significant" in verbose.stdout
     bad = runner.invoke(app, ["diagnose", str(out), "--model", "pi", "--add", "wobble"])
     assert bad.exit_code == 2 and "wobble" in bad.stderr and "effects:" in bad.stderr
     # --report DIR: the HTML page, its path printed (on stderr with --json, which keeps stdout one document)

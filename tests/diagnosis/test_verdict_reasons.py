@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilbench.cli.summaries import diagnosis_lines
+from hilbench.cli.summaries import diagnosis_lines, diagnosis_summary_lines
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.verdict import Candidate, check_reason, failed_checks, relative_gain
@@ -66,6 +66,9 @@ def test_only_candidate_fails_one_check_and_says_by_how_much(asymmetric_sine, mo
     # the text output shows it on the candidate's line
     (line,) = [ln for ln in diagnosis_lines(doc) if ln.lstrip().startswith("asymmetry")]
     assert "not significant" in line and line.endswith(failed["text"])
+    # and the compact view (one screen) names the failed check, measured against required
+    (line,) = [ln for ln in diagnosis_summary_lines(doc) if ln.lstrip().startswith("asymmetry")]
+    assert line.split()[1] == "refused" and line.endswith(failed["text"])
     # untestable verdicts keep their reasons
     reasons = {u["effect"]: u["reason"] for u in doc["untestable"]}
     assert "never holds still" in reasons["creep"]
