@@ -152,6 +152,91 @@ def record_on_rig(config: str, excitation: list[str], record: Path | None, realt
     return out, cfg.name
 
 
+def fit_front_end(active: list[Any], masks: list[np.ndarray], loaded: Any, model: Path | None, split: str,
+                  global_starts: int, note: Any) -> tuple[Any, Any, str, tuple[float, float] | None, Any]:
+    """The offline model and the identifier's front end from the training rows (or a loaded fpmpi
+    model): (front model, Hammerstein model, where it came from, the front end's input range, front end)."""
+    from hilbench.online.oiir import OFFLINE_SPEC, FPMPIFrontEnd, offline_hammerstein
+
+    if loaded is not None and loaded.base.name != "fpmpi":
+        raise UserError(f"the model's base is {loaded.base.name!r}; the front end needs an fpmpi model",
+                        where=str(model), hint="fit one with `hilbench fit DATA --model fpmpi -o fpmpi.json`")
+    if loaded is not None and loaded.effect("dynamics") is not None:
+        hammerstein, source = loaded, f"loaded from {model}, held"
+        front_model = loaded
+    else:
+        if note is not None:
+            note(f"fitting the offline model {OFFLINE_SPEC} on the training rows ({split}) ...")
+        front_model, hammerstein = offline_hammerstein(
+            [r.data for r in active], masks, hysteresis=loaded, global_starts=global_starts, progress=note)
+        source = ("fitted on the training rows, then held; FPMPI " +
+                  (f"from {model}" if loaded is not None else "fitted first (spec fpmpi), as 000 sec. 4.1"))
+    # A front end fitted here on the training rows holds its input within their range: beyond it its
+    # polynomial is an extrapolation the identifier would have to unlearn (decision 0083). A loaded
+    # one was fitted on data this command has not seen: its range is unknown, none is imposed.
+    train_u = np.concatenate([np.asarray(r.data.input, float)[m] for r, m in zip(active, masks)])
+    train_u = train_u[np.isfinite(train_u)]
+    fitted_range = (float(train_u.min()), float(train_u.max())) if loaded is None and train_u.size else None
+    try:
+        front_end = FPMPIFrontEnd.from_model(front_model, input_range=fitted_range)
+    except ValueError as exc:
+        raise UserError(str(exc), where=str(model) if model is not None else "--model") from None
+    return front_model, hammerstein, source, fitted_range, front_end
+
+
+def identify_live_on_rig(config: str, excitation: list[str], record: Path | None, train: list[str], model: Path | None,
+                         *, M: int, N: int, lam: float, delta: float, forgetting: str, global_starts: int,
+                         allow_late: bool, quiet: bool, note: Any) -> tuple[Path, str, list[str], tuple]:
+    """A rig of real devices: its training runs (``--train`` labels or numbers; default the plan's
+    first run) are swept, the offline model and the identifier's front end fitted on them; then
+    the other runs are swept with the identifier live in the fixed-rate loop
+    (:class:`hilbench.online.live.IdentifierLaw`), into the same recording. Returns the recording,
+    the rig's name, the training runs' names in it and the fit (:func:`fit_front_end`)."""
+    from hilbench.excitation.plan import expand_runs, plan_from_compact
+    from hilbench.identify.dataset import as_dataset
+    from hilbench.models import Model
+    from hilbench.online.live import IdentifierLaw
+    from hilbench.online.oiir import OIIR
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.sweep import run_plan
+
+    cfg = load_rig(config)
+    planned = plan_from_compact(excitation) if excitation else expand_runs(cfg.plan, file=cfg.path) if cfg.plan else []
+    if len(planned) < 2:
+        raise UserError("identifying live needs a training run and at least one run to identify "
+                        f"({len(planned)} planned)", where=cfg.path if not excitation else "--excitation",
+                        hint="give two or more runs; the first trains unless --train names others")
+    wanted = set(train or ["1"])
+    chosen = [i for i, p in enumerate(planned, start=1) if str(i) in wanted or p.label in wanted]
+    unknown = wanted - {str(i) for i in chosen} - {planned[i - 1].label for i in chosen}
+    if unknown or not chosen or len(chosen) == len(planned):
+        raise UserError(f"--train {', '.join(sorted(wanted))}: expected run numbers (1-{len(planned)}) or labels of "
+                        "the plan, leaving at least one run to identify", where="--train",
+                        hint="labels: " + ", ".join(p.label for p in planned))
+    out = record or default_output(cfg.name)
+    with Rig(cfg) as rig, RunProgress(not quiet) as progress:
+        first = run_plan(rig, [planned[i - 1] for i in chosen], out, experiment="online training",
+                         progress=progress, check_rate=not allow_late)
+        if first.status != "complete":
+            raise UserError(f"the training sweep ended {first.status}; nothing identified", where=str(out))
+        dataset = as_dataset([out])
+        runs = dataset.fit_runs()
+        keeps, _ = leading_rests(runs)
+        active = [r for r in runs if len(r.data)]
+        masks = [k for r, k in zip(runs, keeps) if len(r.data)]
+        prefit = fit_front_end(active, masks, Model.load(model) if model is not None else None, model,
+                               "the training runs", global_starts, note)
+        front_end = prefit[4]
+        law = IdentifierLaw(lambda: OIIR(front_end, M, N, lam=lam, delta=delta, forgetting=forgetting),
+                            dataset.output_unit)
+        rest = [p for i, p in enumerate(planned, start=1) if i not in chosen]
+        second = run_plan(rig, rest, out, experiment="online", progress=progress, law=law, check_rate=False)
+        if second.status != "complete":
+            raise UserError(f"the live identification ended {second.status}", where=str(out))
+    return out, cfg.name, [r.group for r in first.runs], prefit
+
+
 #: A free run farther than this many measured output spans beyond the measured output range has
 #: diverged: no model error is that large; it is an unstable filter, or a polynomial evaluated far
 #: outside the inputs it was fitted on (the piezo stack: 3.6e9 um for a 39 um stroke).
@@ -576,6 +661,8 @@ def online(
                                           "(default recordings/RIG-STAMP.h5)."),
     realtime: Optional[bool] = typer.Option(None, "--realtime/--no-realtime",
                                             help="Rig mode: pace a simulated rig at its sample rate (default: the config's)."),
+    allow_late: bool = typer.Option(False, "--allow-late", help="Rig mode, real devices: run even when their measured "
+                                    "round trip cannot hold the rig's rate (the overruns are recorded)."),
     output: Optional[Path] = typer.Option(None, "--output", "-o", metavar="FILE.h5",
                                           help="Write the online output and the weights as channels of a new run per run."),
     plot_png: Optional[Path] = typer.Option(None, "--plot", metavar="PNG", help="Measured, offline and online outputs and "
@@ -613,10 +700,21 @@ def online(
         raise UserError(f"{global_starts}: expected >= 0", where="--global-starts")
 
     rig_name = None
+    prefit = None
+    live = False
     is_rig = len(data) == 1 and not data[0].lower().endswith((".h5", ".hdf5")) and not Path(data[0]).is_file()
     is_rig = is_rig or (len(data) == 1 and data[0].lower().endswith(".toml"))
     if is_rig:
-        recorded, rig_name = record_on_rig(data[0], excitation, record, realtime, quiet or as_json)
+        from hilbench.rig.config import load_rig
+
+        if load_rig(data[0]).simulated:
+            recorded, rig_name = record_on_rig(data[0], excitation, record, realtime, quiet or as_json)
+        else:  # real devices: the identifier runs in the loop
+            live = True
+            recorded, rig_name, train, prefit = identify_live_on_rig(
+                data[0], excitation, record, train, model, M=M, N=N, lam=forgetting, delta=delta,
+                forgetting=forgetting_kind, global_starts=global_starts, allow_late=allow_late, quiet=quiet or as_json,
+                note=note)
         note(f"recorded {recorded}")
         paths = [recorded]
     else:
@@ -638,29 +736,9 @@ def online(
         raise UserError(f"the training set is empty ({split})", where="--train")
 
     loaded = Model.load(model) if model is not None else None
-    if loaded is not None and loaded.base.name != "fpmpi":
-        raise UserError(f"the model's base is {loaded.base.name!r}; the front end needs an fpmpi model",
-                        where=str(model), hint="fit one with `hilbench fit DATA --model fpmpi -o fpmpi.json`")
-    if loaded is not None and loaded.effect("dynamics") is not None:
-        hammerstein, source = loaded, f"loaded from {model}, held"
-        front_model = loaded
-    else:
-        note(f"fitting the offline model {OFFLINE_SPEC} on the training rows ({split}) ...")
-        front_model, hammerstein = offline_hammerstein(
-            [r.data for r in active], masks, hysteresis=loaded, global_starts=global_starts,
-            progress=None if quiet else note)
-        source = ("fitted on the training rows, then held; FPMPI " +
-                  (f"from {model}" if loaded is not None else "fitted first (spec fpmpi), as 000 sec. 4.1"))
-    # A front end fitted here on the training rows holds its input within their range: beyond it its
-    # polynomial is an extrapolation the identifier would have to unlearn (decision 0083). A loaded
-    # one was fitted on data this command has not seen: its range is unknown, none is imposed.
-    train_u = np.concatenate([np.asarray(r.data.input, float)[m] for r, m in zip(active, masks)])
-    train_u = train_u[np.isfinite(train_u)]
-    fitted_range = (float(train_u.min()), float(train_u.max())) if loaded is None and train_u.size else None
-    try:
-        front_end = FPMPIFrontEnd.from_model(front_model, input_range=fitted_range)
-    except ValueError as exc:
-        raise UserError(str(exc), where=str(model) if model is not None else "--model") from None
+    if prefit is None:
+        prefit = fit_front_end(active, masks, loaded, model, split, global_starts, None if quiet else note)
+    front_model, hammerstein, source, fitted_range, front_end = prefit
     train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
     train_metrics = _pick(metrics(np.concatenate([a for a, _ in train_y]), np.concatenate([b for _, b in train_y])))
 
@@ -694,6 +772,17 @@ def online(
         doc["rig"] = rig_name
         doc["mode_note"] = ("rig: the plan was swept through the runner into the recording, then replayed through "
                             "the identifier (the samples and their order are those of a step-mode loop)")
+    if live:
+        doc["mode"] = "rig-live"
+        doc["mode_note"] = ("real devices: the training runs were swept and the offline model fitted on them; the "
+                            "other runs were identified live, in the fixed-rate loop, their predictions and weights "
+                            "recorded as channels; the replay of the recording gives the same predictions")
+        from hilbench.recording.hdf5 import Recording
+
+        live_runs = {run.name: run for run in Recording(paths[0])}
+        for c, entry in zip(comparisons, doc["runs"]):
+            recorded_online = live_runs[c.name].channel("online")
+            entry["live_vs_replay_max_abs"] = float(np.max(np.abs(recorded_online - c.online)))
     if output is not None:
         doc["output"] = str(output)
         doc["output_runs"] = write_online(output, comparisons, settings, dataset.output_unit, dataset.input_unit)

@@ -410,8 +410,13 @@ class CompensatorLaw:
     measured (model memory, feedback, identifier). It keeps the run's reference, commands and output
     (preallocated) for the figures the recording gets when the run ends, whatever its status."""
 
+    reads_reference = True
+
     def __init__(self, comp: Compensator, aux0: dict[str, float] | None, n: int,
                  on_finish: Any):
+        from hilbench.runners.fixed_rate import tracking_channels
+
+        self.channels = tracking_channels(comp.unit)
         self.comp = comp
         self.aux = dict(aux0) if aux0 else None
         self.k = 0
@@ -435,6 +440,11 @@ class CompensatorLaw:
         k = self.k
         self.ref[k], self.applied[k], self.y[k] = reference, applied, y
         self.k = k + 1
+
+    def take(self, n: int) -> dict[str, np.ndarray]:
+        k = self.k
+        ref = self.ref[k - n:k]
+        return {"reference": ref, "command": self.cmd[k - n:k], "error": ref - self.y[k - n:k]}
 
     def finish_attrs(self, samples: int) -> dict[str, Any]:
         k = self.k
@@ -542,11 +552,11 @@ def _write(rig: Any, result: TrackResult, output: str | Path, label: str) -> tup
     """A lock-step run, recorded when it is done (the fused loop runs in one go): the channels a run on
     devices records (``lateness`` 0: a lock-step simulation is never late)."""
     from hilbench.recording.hdf5 import RecordingWriter
-    from hilbench.runners.fixed_rate import law_channels, lateness_channel
+    from hilbench.runners.fixed_rate import lateness_channel, tracking_channels
 
     writer = RecordingWriter(output)
     channels = [c for c in rig.channels() if c.name in ("time", "input", "output") or c.name in result.aux]
-    channels += [lateness_channel(), *law_channels(rig.actuator.unit)]
+    channels += [lateness_channel(), *tracking_channels(rig.actuator.unit)]
     run = writer.begin_run(label, channels, experiment="track", excitation=result.compensator.get("reference", {}),
                            sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
                            extra_attrs={"compensator": json.dumps(result.compensator, default=str), "mode": "lockstep"})

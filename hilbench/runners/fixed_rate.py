@@ -28,11 +28,14 @@ and closes the run ``failed`` with the reason, keeping every sample before):
   itself (``rig.stop(False)`` through :class:`~hilbench.runners.faults.SafeStop`), then the loop ends
   with :class:`~hilbench.runners.faults.LoopStalled` when it gets control back.
 
-A closed loop (``law``, e.g. :class:`hilbench.online.tracking.CompensatorLaw`) runs in the same loop:
-the run's source is then the reference, and per sample the law turns it into the command
-(``law.command(r)``) before the safety path, then learns what was applied and measured
-(``law.commit(r, applied, row)``, ``row`` the sample's calibrated channels); ``reference``,
-``command`` (before the safety path) and ``error`` (reference - output) are recorded besides.
+A law (:class:`LoopLaw`) runs in the same loop, per sample: it turns the run's source value into the
+command (``law.command(r)``) before the safety path, then learns what was applied and measured
+(``law.commit(r, applied, row)``, ``row`` the sample's calibrated channels), and the channels it
+declares (``law.channels``) are recorded beside the rig's, taken from it at every append
+(``law.take(n)``). A closed loop (:class:`hilbench.online.tracking.CompensatorLaw`) reads a reference
+and records ``reference``, ``command`` and ``error``; the live identifier
+(:class:`hilbench.online.live.IdentifierLaw`) passes the excitation through and records its
+prediction and weights.
 
 The cyclic garbage collector is frozen for the loop (``gc.freeze``): the objects alive before the run
 are not scanned again, so collections stay short.
@@ -67,21 +70,29 @@ def lateness_channel() -> ChannelSpec:
     return ChannelSpec("lateness", "s", CANONICAL_CHANNELS["lateness"][1])
 
 
-class LoopLaw(Protocol):
-    """What a closed loop adds to the fixed-rate loop (see the module docstring)."""
-
-    def command(self, reference: float) -> float:
-        """The command for this sample's reference, before the rig's safety path."""
-
-    def commit(self, reference: float, applied: float, row: dict[str, float]) -> None:
-        """What was applied and measured (``row``: channel -> calibrated value) this sample."""
-
-
-def law_channels(unit: str) -> list[ChannelSpec]:
-    """The channels a closed loop records besides the rig's (``unit``: the actuator's)."""
+def tracking_channels(unit: str) -> list[ChannelSpec]:
+    """The channels a tracking run records besides the rig's (``unit``: the actuator's)."""
     return [ChannelSpec("reference", "um", CANONICAL_CHANNELS["reference"][1]),
             ChannelSpec("command", unit, "compensator command before the safety path"),
             ChannelSpec("error", "um", "tracking error: reference - output")]
+
+
+class LoopLaw(Protocol):
+    """What a law adds to the fixed-rate loop (see the module docstring)."""
+
+    #: True: the run's source is a reference (um), not commands (the plan check does not apply)
+    reads_reference: bool
+    #: the channels it records besides the rig's
+    channels: list[ChannelSpec]
+
+    def command(self, source: float) -> float:
+        """The command for this sample's source value, before the rig's safety path."""
+
+    def commit(self, source: float, applied: float, row: dict[str, float]) -> None:
+        """What was applied and measured (``row``: channel -> calibrated value) this sample."""
+
+    def take(self, n: int) -> dict[str, np.ndarray]:
+        """Its channels' values of the last ``n`` committed samples (the loop appends them)."""
 
 
 @dataclass
@@ -226,7 +237,6 @@ def run_fixed_rate(
                 break
             m = commands.shape[0]
             u = np.empty(m)
-            ucmd = np.empty(m) if law is not None else commands
             late = np.full(m, nan)
             taken = np.empty(m)  # when each sample was taken, s from the first deadline
             buf = {c: np.empty(m) for c in channels}
@@ -253,12 +263,7 @@ def run_fixed_rate(
                             raise LoopStalled(act_name, f"{safe.note or 'watchdog tripped'} (loop resumed at "
                                                         f"sample {k})")
                         r = float(commands[j])
-                        if law_command is not None:
-                            r_cmd = law_command(r)
-                            ucmd[j] = r_cmd
-                        else:
-                            r_cmd = r
-                        value = apply_value(r_cmd)
+                        value = apply_value(law_command(r) if law_command is not None else r)
                         try:
                             write(value)
                         except Exception as exc:
@@ -288,8 +293,7 @@ def run_fixed_rate(
                 if j:
                     data = {"time": taken[:j], "input": u[:j], "lateness": late[:j], **{c: buf[c][:j] for c in channels}}
                     if law is not None:
-                        data.update(reference=commands[:j], command=ucmd[:j],
-                                    error=commands[:j] - buf["output"][:j])
+                        data.update(law.take(j))
                     run.append(data)
                     stats.add(late[:j])
                     done += j

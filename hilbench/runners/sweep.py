@@ -42,7 +42,7 @@ from hilbench.recording.hdf5 import RecordingWriter
 from hilbench.rig.rig import Rig
 from hilbench.runners.block import can_play, run_block
 from hilbench.runners.faults import DeviceFault, SafeStop, summary
-from hilbench.runners.fixed_rate import LoopLaw, law_channels, lateness_channel, run_fixed_rate
+from hilbench.runners.fixed_rate import LoopLaw, lateness_channel, run_fixed_rate
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -134,10 +134,10 @@ def run_plan(
     rigs in tests only, never for hardware. ``watchdog_periods``: the fixed-rate loop's watchdog
     trips after this many periods without a sample (default: 2 s worth).
 
-    ``law``: a closed loop (fixed-rate mode only): each run's excitation is then the reference (um)
-    the law turns into commands, so it is not checked against the actuator's limits (the law's
-    commands go through the safety path); the caller has brought the rig (and the law's memory) to
-    the first command, and ``law.finish_attrs(samples)``, when the law has it, adds to the run's
+    ``law``: a per-sample law in the loop (fixed-rate mode only, :class:`LoopLaw`). One that reads a
+    reference (a closed loop) gets each run's excitation as the reference (um) it turns into
+    commands, so that is not checked against the actuator's limits (its commands go through the
+    safety path), and the caller has brought the rig (and the law's memory) to the first command; ``law.finish_attrs(samples)``, when the law has it, adds to the run's
     attributes whatever its status. ``run_attrs`` go into every run's attributes.
 
     ``check_rate``: a paced fixed-rate run first times the devices' round trips (the actuator held
@@ -161,7 +161,8 @@ def run_plan(
                          "lockstep=False) to step it sample by sample")
     if law is not None and mode != "fixed-rate":
         raise ValueError(f"a closed loop runs in fixed-rate mode, not {mode}")
-    if law is None:
+    reads_reference = law is not None and law.reads_reference
+    if not reads_reference:
         check_plan(runs, rig.actuator, rig.sample_rate_hz)
     realtime = rig.config.realtime if realtime is None else realtime
     if check_rate and mode == "fixed-rate" and pace:
@@ -179,7 +180,7 @@ def run_plan(
     result = SweepResult(str(output))
     channels = rig.channels() + ([lateness_channel()] if mode == "fixed-rate" else [])
     if law is not None:
-        channels += law_channels(rig.actuator.unit)
+        channels += law.channels
     finish_attrs = getattr(law, "finish_attrs", None)
 
     def law_attrs(done: int) -> dict[str, Any]:
@@ -208,6 +209,8 @@ def run_plan(
                                  "approach_from": rig.last_applied, "mode": mode, **(run_attrs or {})},
                 )
                 previous_group = run.group_name
+                if law is not None and hasattr(law, "start_run"):
+                    law.start_run()  # e.g. a fresh identifier per run
                 n_total = exc.n_samples(rig.sample_rate_hz)
                 emit("run-started", run.group_name, samples=n_total)
                 safe = SafeStop(rig, threading.Lock())
@@ -224,7 +227,7 @@ def run_plan(
 
                 try:
                     # a closed loop starts from where its caller brought the rig
-                    first = float(next(exc.chunks(rig.sample_rate_hz, 1))[0]) if law is None else rig.last_applied
+                    first = rig.last_applied if reads_reference else float(next(exc.chunks(rig.sample_rate_hz, 1))[0])
                     try:
                         rig.start_run(first)
                     except Exception as error:
