@@ -218,8 +218,7 @@ def identify_live_on_rig(config: str, excitation: list[str], record: Path | None
     with Rig(cfg) as rig, RunProgress(not quiet) as progress:
         first = run_plan(rig, [planned[i - 1] for i in chosen], out, experiment="online training",
                          progress=progress, check_rate=not allow_late)
-        if first.status != "complete":
-            raise UserError(f"the training sweep ended {first.status}; nothing identified", where=str(out))
+        _stopped(first, out)
         dataset = as_dataset([out])
         runs = dataset.fit_runs()
         keeps, _ = leading_rests(runs)
@@ -232,9 +231,21 @@ def identify_live_on_rig(config: str, excitation: list[str], record: Path | None
                             dataset.output_unit)
         rest = [p for i, p in enumerate(planned, start=1) if i not in chosen]
         second = run_plan(rig, rest, out, experiment="online", progress=progress, law=law, check_rate=False)
-        if second.status != "complete":
-            raise UserError(f"the live identification ended {second.status}", where=str(out))
+        _stopped(second, out)
     return out, cfg.name, [r.group for r in first.runs], prefit
+
+
+def _stopped(result: Any, out: Path) -> None:
+    """A sweep that did not complete ends the command: a Ctrl-C/SIGTERM as a stopped run (exit 130)."""
+    from hilbench.errors import RunStopped
+
+    if result.status == "complete":
+        return
+    last = result.runs[-1] if result.runs else None
+    if result.status == "aborted" and last is not None:
+        raise RunStopped(last.reason.splitlines()[0], where=f"{out} run {last.group}",
+                         hint="the samples before the interrupt are recorded (status aborted); nothing identified")
+    raise UserError(f"the sweep ended {result.status}; nothing identified", where=str(out))
 
 
 #: A free run farther than this many measured output spans beyond the measured output range has

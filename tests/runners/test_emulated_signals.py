@@ -1,11 +1,11 @@
-"""Signals on `hilbench sweep` and `hilbench track` running on real drivers (issue 59): the Modbus AIO +
+"""Signals on `hilbench sweep`, `track` and `online` running on real drivers (issue 59): the Modbus AIO +
 Keyence template pointed at its emulators (in this process) the way a user would, the command in
 another process, paced at the template's rate with --allow-late. The test watches the emulated
 amplifier's writes and signals the command once the run is well under way.
 
 SIGTERM (and SIGINT, the same handler): held off to the end of the chunk, the actuator ramped to rest
 (the emulator's last command is 0 A), the run recorded ``aborted`` with every sample, one line on
-stderr, exit 130 for track (a stopped run) and 1 for sweep (its runs did not all complete).
+stderr, exit 130 for track and online (a stopped run) and 1 for sweep (its runs did not all complete).
 SIGKILL: no chance to do anything; the recording opens as it is, ``running``, with what was flushed.
 """
 
@@ -66,10 +66,12 @@ def _run_and_signal(emu, argv: list[str], sig: int, after_writes: int = 1500) ->
 def _command(kind: str, config: Path, out: Path, model: tuple[Path, str]) -> list[str]:
     if kind == "sweep":
         return ["sweep", str(config), "-e", LONG, "-o", str(out), "-q", "--allow-late"]
+    if kind == "online":  # the training run is under way when the signal comes
+        return ["online", str(config), "-e", LONG, "-e", LONG, "--record", str(out), "-q", "--allow-late"]
     return ["track", str(config), "--model", str(model[0]), "-r", model[1], "-o", str(out), "--allow-late"]
 
 
-@pytest.mark.parametrize("kind", ["sweep", "track"])
+@pytest.mark.parametrize("kind", ["sweep", "track", "online"])
 def test_sigterm_stops_at_a_safe_point_and_the_run_is_kept_aborted_at_rest(kind, model_file, tmp_path):
     out = tmp_path / f"{kind}.h5"
     with start_emulators(load_rig(TEMPLATE)) as emu:
@@ -80,8 +82,8 @@ def test_sigterm_stops_at_a_safe_point_and_the_run_is_kept_aborted_at_rest(kind,
         steps = np.abs(np.diff(aio.ao_writes))
         assert steps.max() <= 200.0 / 1000.0 + LSB  # never faster than the slew limit
     assert "Traceback" not in done.stderr
-    assert done.returncode == (130 if kind == "track" else 1), done.stderr
-    if kind == "track":
+    assert done.returncode == (1 if kind == "sweep" else 130), done.stderr
+    if kind != "sweep":
         (line,) = done.stderr.strip().splitlines()
         assert "interrupted by SIGTERM" in line and str(out) in line
     (run,) = Recording(out).runs
