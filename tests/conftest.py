@@ -143,6 +143,28 @@ SHARED_WORKER_MODULES = {
 }
 
 
+# Modules holding the suite's longest tests (20-120 s each in .ci/run's durations), handed out first:
+# a long test started last keeps one worker busy while the other has nothing left to do. Every
+# worker collects the same order (pytest-xdist requires it); only the order changes, never a verdict.
+LONG_FIRST_MODULES = (
+    "tests/diagnosis/test_pairs.py",
+    "tests/diagnosis/test_random_cases.py",
+    "tests/models/test_paper_reproductions.py",
+    "tests/test_benchmarks.py",
+    "tests/diagnosis/test_diagnosis.py",
+    "tests/test_cli.py",
+    "tests/diagnosis/test_creep_decades.py",
+    "tests/test_cli_progress.py",
+    "tests/test_real_data_diagnosis.py",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        rank = {m: i for i, m in enumerate(LONG_FIRST_MODULES)}
+        items.sort(key=lambda item: rank.get(item.nodeid.split("::", 1)[0], len(rank)))  # stable
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config: pytest.Config, log):
     """`--dist load` (the suite's default), but the modules of SHARED_WORKER_MODULES go to one worker

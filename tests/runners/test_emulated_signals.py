@@ -93,7 +93,8 @@ def test_sigterm_stops_at_a_safe_point_and_the_run_is_kept_aborted_at_rest(kind,
     assert np.all(np.isfinite(data["output"]))
 
 
-@pytest.mark.parametrize("kind", ["sweep", "track"])
+# SIGKILL of a sweep: tests/recording/test_recording.py (the same recording path, a simulated rig)
+@pytest.mark.parametrize("kind", ["track"])
 def test_sigkill_leaves_a_recording_that_opens_running_with_what_was_flushed(kind, model_file, tmp_path):
     out = tmp_path / f"{kind}.h5"
     with start_emulators(load_rig(TEMPLATE)) as emu:
