@@ -48,6 +48,13 @@ class RunStopped(UserError):
 
     exit_code = 130
 
+    @classmethod
+    def of_run(cls, reason: str, recording: str | None, group: str, what: str = "") -> RunStopped:
+        """The error for a run closed ``aborted`` (``reason``: its recorded reason); ``recording``
+        None when the run was not kept for the user (a temporary file)."""
+        hint = None if recording is None else "the samples before the interrupt are recorded (status aborted)" + what
+        return cls(reason.splitlines()[0], where=None if recording is None else f"{recording} run {group}", hint=hint)
+
 
 class ConfigError(UserError):
     """A rig config or plan file is invalid."""

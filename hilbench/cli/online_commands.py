@@ -243,8 +243,7 @@ def _stopped(result: Any, out: Path) -> None:
         return
     last = result.runs[-1] if result.runs else None
     if result.status == "aborted" and last is not None:
-        raise RunStopped(last.reason.splitlines()[0], where=f"{out} run {last.group}",
-                         hint="the samples before the interrupt are recorded (status aborted); nothing identified")
+        raise RunStopped.of_run(last.reason, str(out), last.group, "; nothing identified")
     raise UserError(f"the sweep ended {result.status}; nothing identified", where=str(out))
 
 

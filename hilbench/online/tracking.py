@@ -484,8 +484,7 @@ def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: d
         seconds = time.perf_counter() - started
         (done,) = outcome.runs
         if done.status == "aborted":
-            raise RunStopped(done.reason.splitlines()[0], where=f"{path} run {done.group}" if output else None,
-                             hint="the samples before the interrupt are recorded (status aborted)" if output else None)
+            raise RunStopped.of_run(done.reason, str(path) if output else None, done.group)
         run = Recording(path).run(done.group)
         data = run.data()
         aux = {c: data[c] for c in data if c not in ("time", "input", "output", "reference", "command", "error",
