@@ -4,7 +4,7 @@ Conventions (DESIGN.md, "Command line"): every command that produces results tak
 then prints exactly one JSON document on stdout; progress goes to stderr; an error the user can fix
 prints one line (and a hint) on stderr and exits with status 2, no traceback unless ``--debug``.
 
-Each module registers its commands on the one :data:`app`: recording_commands (sweep, show, import,
+Each module registers its commands on the one :data:`app`: recording_commands (sweep, show, watch, import,
 plot, rigs), device_commands (devices, emulate, run), model_commands (fit, diagnose), online_commands (online), track_commands (track), demo.
 """
 

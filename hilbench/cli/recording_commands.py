@@ -1,4 +1,4 @@
-"""Commands on rigs and recordings: sweep, show, import, plot, rigs."""
+"""Commands on rigs and recordings: sweep, show, watch, import, plot, rigs."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def sweep(
         plan_from_compact,
     )
     from hilbench.rig.config import load_rig
-    from hilbench.recording.hdf5 import loop_line
+    from hilbench.recording.lateness import loop_line
     from hilbench.rig.rig import Rig
     from hilbench.runners.sweep import run_plan
 
@@ -146,7 +146,8 @@ def _timed_round_trips(rig_config: Any, allow_late: bool) -> dict[str, Any]:
 
 def _loop_figures(path: Path, groups: list[str]) -> dict[str, dict[str, Any]]:
     """The fixed-rate loop's timing figures of the given runs of a recording (none for other modes)."""
-    from hilbench.recording.hdf5 import Recording, loop_figures
+    from hilbench.recording.hdf5 import Recording
+    from hilbench.recording.lateness import loop_figures
 
     if not groups or not Path(path).exists():
         return {}
@@ -164,7 +165,8 @@ def show(
     as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout."),
 ) -> None:
     """List the runs of a recording: status, sample rate, samples, channels and units."""
-    from hilbench.recording.hdf5 import Recording, loop_line
+    from hilbench.recording.hdf5 import Recording
+    from hilbench.recording.lateness import loop_line
 
     summary = Recording(file).summary()
     if as_json:
@@ -249,3 +251,45 @@ def rigs(as_json: bool = typer.Option(False, "--json", help="Print one JSON docu
         return
     for e in entries:
         typer.echo(f"{e['name']:24s} paper {e['paper'] or '-':4s} {e['description']}")
+
+
+@app.command()
+@user_errors
+def watch(
+    file: Path = typer.Argument(..., help="Recording (.h5) being written (by sweep, track, online or run)."),
+    text: bool = typer.Option(False, "--text", help="A line on the terminal twice a second instead of the page."),
+    port: int = typer.Option(0, "--port", min=0, max=65535, help="Port of the page on 127.0.0.1 (0: a free one)."),
+    window: float = typer.Option(10.0, "--window", min=0.1, max=3600.0, help="Seconds of the run shown."),
+    linger: float = typer.Option(5.0, "--linger", min=0.0, max=600.0,
+                                 help="After a run ends, seconds to wait for the sweep's next run."),
+    wait: float = typer.Option(30.0, "--wait", min=0.0, max=3600.0,
+                               help="Seconds to wait for the file, and its first run, to appear."),
+) -> None:
+    """Follow a recording while it is written: the running run's traces, its input-output loop and the
+    loop's lateness, refreshed a few times a second, in a page on 127.0.0.1 (or --text). A reader in
+    its own process: the run never waits for it. Ends by itself when the run does."""
+    from hilbench.recording.hdf5 import check_recording
+    from hilbench.report.live_view import Follower, serve, text_line
+
+    deadline = time.monotonic() + wait
+    while not file.exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    check_recording(file)
+    follower = Follower(file, window_s=window, linger_s=linger, wait_s=max(0.0, deadline - time.monotonic()))
+    try:
+        if text:
+            while not follower.ended:
+                typer.echo(text_line(follower.refresh()))
+                time.sleep(0.5)
+        else:
+            server, _ = serve(follower, port)
+            url = f"http://127.0.0.1:{server.server_address[1]}/"
+            typer.echo(f"watching {file}: {url} (ends when the run does; Ctrl-C stops watching)")
+            while not follower.ended:
+                time.sleep(0.2)
+            time.sleep(1.0)  # the page's last poll sees the end
+            server.shutdown()
+    except KeyboardInterrupt:
+        typer.echo("stopped watching (the run goes on)")
+        return
+    typer.echo(f"watching ended: {follower.ended}")

@@ -93,9 +93,12 @@ def track(
     typer.echo("  " + ", ".join(f"{k} {v:.4g}" for k, v in m.items()))
     typer.echo("  " + health_line(result.health))
     if result.loop:
-        from hilbench.recording.hdf5 import loop_line
+        from hilbench.recording.lateness import loop_line
 
         typer.echo("  " + loop_line(result.loop))
+    if result.compensator.get("played"):
+        typer.echo(f"  played: {result.compensator['played']} (feedforward: a controller that plays waveforms "
+                   "cannot carry feedback through per-sample serial I/O at this rate)")
     if result.reference_clipped:
         c = result.reference_clipped
         typer.echo(f"  reference clipped: {c['samples']} samples ({c['share_pct']:.3g} %) to the reachable "

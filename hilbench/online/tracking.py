@@ -321,8 +321,15 @@ def track(
     ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
     plant = getattr(rig.lockstep, "plant", None)
     on_devices = plant is None or not hasattr(plant, "step_arrays")
+    played = False
+    if on_devices:
+        from hilbench.online.tracking_devices import refuse_per_sample_law_on_player
+        from hilbench.runners.block import can_play
+
+        refuse_per_sample_law_on_player(rig, comp)
+        played = can_play(rig)  # the device plays the run: no per-sample round trips to time
     trips = None
-    if on_devices and check_rate and rig.pace:
+    if on_devices and check_rate and rig.pace and not played:
         from hilbench.runners.rate_check import require_rate
 
         trips = require_rate(rig).describe()
@@ -334,7 +341,9 @@ def track(
     first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
     _drive(rig, comp, first)
     if on_devices:
-        return _track_on_devices(rig, comp, ref, described, clipped, output, label, aux0, trips)
+        from hilbench.online.tracking_devices import track_on_devices
+
+        return track_on_devices(rig, comp, ref, described, clipped, output, label, aux0, trips)
     # Lock-step simulation: the fused loop, on the rig's own safety state.
     rig.lockstep.start_run()
     approach_from = rig.last_applied
@@ -383,123 +392,6 @@ def _finish_attrs(result: TrackResult) -> dict[str, Any]:
     if result.reference_clipped is not None:
         extra["reference_clipped"] = json.dumps(result.reference_clipped)
     return extra
-
-
-class ReferenceSource:
-    """A reference (um) as the fixed-rate loop's run source (an :class:`Excitation`'s interface)."""
-
-    def __init__(self, values: np.ndarray, described: dict[str, Any]):
-        self.values = np.ascontiguousarray(values, dtype=np.float64)
-        self.described = described
-
-    def n_samples(self, sample_rate_hz: float) -> int:
-        return int(self.values.size)
-
-    def chunks(self, sample_rate_hz: float, chunk: int) -> Any:
-        for start in range(0, self.values.size, chunk):
-            yield self.values[start:start + chunk]
-
-    def describe(self) -> dict[str, Any]:
-        return {"reference": self.described}
-
-
-class CompensatorLaw:
-    """The compensator as the fixed-rate loop's closed-loop law on a real rig
-    (:class:`hilbench.runners.fixed_rate.LoopLaw`): per sample its command for the reference (with
-    the aux channels measured at the sample before), then the commit of what was applied and
-    measured (model memory, feedback, identifier). It keeps the run's reference, commands and output
-    (preallocated) for the figures the recording gets when the run ends, whatever its status."""
-
-    reads_reference = True
-
-    def __init__(self, comp: Compensator, aux0: dict[str, float] | None, n: int,
-                 on_finish: Any):
-        from hilbench.runners.fixed_rate import tracking_channels
-
-        self.channels = tracking_channels(comp.unit)
-        self.comp = comp
-        self.aux = dict(aux0) if aux0 else None
-        self.k = 0
-        self.ref, self.cmd, self.applied, self.y = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-        self._on_finish = on_finish
-        self._step = comp.step
-        self._update = comp.update
-
-    def command(self, reference: float) -> float:
-        u = self._step(reference, self.aux)
-        self.cmd[self.k] = u
-        return u
-
-    def commit(self, reference: float, applied: float, row: dict[str, float]) -> None:
-        aux = self.aux
-        if aux is not None:
-            for c in aux:
-                aux[c] = row[c]
-        y = row["output"]
-        self._update(reference, applied, y, aux)
-        k = self.k
-        self.ref[k], self.applied[k], self.y[k] = reference, applied, y
-        self.k = k + 1
-
-    def take(self, n: int) -> dict[str, np.ndarray]:
-        k = self.k
-        ref = self.ref[k - n:k]
-        return {"reference": ref, "command": self.cmd[k - n:k], "error": ref - self.y[k - n:k]}
-
-    def finish_attrs(self, samples: int) -> dict[str, Any]:
-        k = self.k
-        return self._on_finish(self.ref[:k], self.cmd[:k], self.applied[:k], self.y[:k])
-
-
-def _track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: dict[str, Any],
-                      clipped: dict[str, Any] | None, output: str | Path | None, label: str,
-                      aux0: dict[str, float] | None, trips: dict[str, Any] | None = None) -> TrackResult:
-    """Per-sample devices: the runner's fixed-rate loop (:mod:`hilbench.runners.fixed_rate`) with the
-    compensator as its law, so a tracking run has what every experiment on a real rig has: the
-    interlocks, the watchdog, Ctrl-C and SIGTERM held off to the end of a chunk, the recording streamed
-    and closed with its status, the actuator ramped to rest on any fault. The compensator's kernels
-    are compiled before the first deadline. Without ``output`` the run is recorded to a temporary file
-    (a run on hardware is always recorded while it runs), removed afterwards."""
-    import tempfile
-
-    from hilbench.excitation.plan import PlannedRun
-    from hilbench.recording.hdf5 import Recording, loop_figures
-    from hilbench.runners.sweep import run_plan
-
-    comp.warm_up(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
-    approach_from = rig.last_applied
-
-    def figures(r: np.ndarray, cmd: np.ndarray, applied: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-        return _finish_attrs(_result(rig, comp, r, cmd, applied, y, {}, described, clipped))
-
-    law = CompensatorLaw(comp, aux0, ref.size, figures)
-    temporary = tempfile.TemporaryDirectory(prefix="hilbench-track-") if output is None else None
-    path = Path(output) if output is not None else Path(temporary.name) / "track.h5"  # type: ignore[union-attr]
-    try:
-        started = time.perf_counter()
-        outcome = run_plan(rig, [PlannedRun(label, ReferenceSource(ref, described))], path,  # type: ignore[arg-type]
-                           experiment="track", mode="fixed-rate", law=law, pace=rig.pace,
-                           run_attrs={"compensator": json.dumps(comp.describe(), default=str),
-                                      **({"round_trips": json.dumps(trips)} if trips else {})})
-        seconds = time.perf_counter() - started
-        (done,) = outcome.runs
-        if done.status == "aborted":
-            raise RunStopped.of_run(done.reason, str(path) if output else None, done.group)
-        run = Recording(path).run(done.group)
-        data = run.data()
-        aux = {c: data[c] for c in data if c not in ("time", "input", "output", "reference", "command", "error",
-                                                      "lateness")}
-        result = _result(rig, comp, data["reference"], data["command"], data["input"], data["output"], aux,
-                         described, clipped)
-        result.limited = int(np.count_nonzero(result.command != result.input))
-        result.seconds, result.approach_from = seconds, approach_from
-        result.loop = loop_figures(run.attrs)
-        if output is not None:
-            result.file, result.group = str(path), done.group
-        return result
-    finally:
-        if temporary is not None:
-            temporary.cleanup()
 
 
 def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,

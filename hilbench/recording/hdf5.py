@@ -27,6 +27,7 @@ import numpy as np
 
 from hilbench import __version__
 from hilbench.errors import DataError
+from hilbench.recording.lateness import loop_figures
 from hilbench.recording.recover import clear_stale_write_flags, write_flags
 
 FORMAT = "hilbench-recording"
@@ -95,21 +96,31 @@ class RunWriter:
         self.flush_interval_s = flush_interval_s
         self.n_samples = 0
         self.n_flushed = 0
-        self._last_flush = time.monotonic()
+        self.last_flush = time.monotonic()
         self._file: h5py.File | None = None
         self._datasets: dict[str, h5py.Dataset] = {}
 
     # -- streaming -------------------------------------------------------------------------
-    def _open_swmr(self) -> None:
+    def open(self) -> None:
+        """Open the file for streaming, in SWMR mode (the first append does it too)."""
+        if self._file is not None:
+            return
         self._file = h5py.File(self.path, "a", libver="latest")
         group = self._file[f"runs/{self.group_name}"]
         self._datasets = {c.name: group[c.name] for c in self.channels}
         self._file.swmr_mode = True
 
+    def close(self) -> int:
+        """Flush and close the streaming file (attributes are written by :meth:`finish`); the samples written."""
+        if self._file is not None:
+            self.flush()
+            self._file.close()
+            self._file = None
+        return self.n_samples
+
     def append(self, data: Mapping[str, np.ndarray]) -> None:
         """Append a block of samples; every channel of the run must be given, all of one length."""
-        if self._file is None:
-            self._open_swmr()
+        self.open()
         lengths = {len(np.asarray(data[c.name])) for c in self.channels}
         if len(lengths) != 1:
             raise ValueError(f"channels of one block differ in length: {sorted(lengths)}")
@@ -122,7 +133,7 @@ class RunWriter:
             ds.resize((new_size,))
             ds[self.n_samples : new_size] = np.asarray(data[c.name], dtype=np.float64)
         self.n_samples = new_size
-        if time.monotonic() - self._last_flush >= self.flush_interval_s:
+        if time.monotonic() - self.last_flush >= self.flush_interval_s:
             self.flush()
 
     def flush(self) -> None:
@@ -132,16 +143,13 @@ class RunWriter:
             ds.flush()
         self._file.flush()
         self.n_flushed = self.n_samples
-        self._last_flush = time.monotonic()
+        self.last_flush = time.monotonic()
 
     def finish(self, status: str, reason: str = "", extra_attrs: Mapping[str, Any] | None = None) -> None:
         """Flush, leave SWMR mode and write ``ended``, ``reason`` and, last, ``status``."""
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
-        if self._file is not None:
-            self.flush()
-            self._file.close()
-            self._file = None
+        self.close()
         # Attributes are written outside SWMR mode (SWMR does not cover attribute changes).
         with h5py.File(self.path, "a", libver="latest") as f:
             group = f[f"runs/{self.group_name}"]
@@ -162,6 +170,8 @@ class RecordingWriter:
     def __init__(self, path: str | os.PathLike[str], flush_interval_s: float = 0.5):
         self.path = Path(path)
         self.flush_interval_s = flush_interval_s
+        #: other processes writing this file's runs (a writer process), kept with this one's pid
+        self.helper_pids: list[int] = []
         if self.path.exists():
             self._recover_if_stale()
             check_recording(self.path)
@@ -187,9 +197,11 @@ class RecordingWriter:
                 writer = json.loads(_text(f.attrs.get("writer", "")) or "{}")
         except (OSError, ValueError):
             writer = {}
-        if writer.get("host") == socket.gethostname() and _pid_alive(int(writer.get("pid", -1))):
+        pids = [int(writer.get("pid", -1)), *(int(p) for p in writer.get("helpers", []))]
+        alive = [p for p in pids if _pid_alive(p)]
+        if writer.get("host") == socket.gethostname() and alive:
             raise DataError(
-                f"the recording is being written by process {writer['pid']}; wait for it or give another file",
+                f"the recording is being written by process {alive[0]}; wait for it or give another file",
                 where=str(self.path),
             )
         clear_stale_write_flags(self.path)
@@ -215,7 +227,8 @@ class RecordingWriter:
         """Create the run group with ``status = "running"`` and its empty channels."""
         group_name = run_group_name(self.next_index(), label)
         with h5py.File(self.path, "a", libver="latest") as f:
-            f.attrs["writer"] = json.dumps({"pid": os.getpid(), "host": socket.gethostname()})
+            f.attrs["writer"] = json.dumps({"pid": os.getpid(), "helpers": self.helper_pids,
+                                            "host": socket.gethostname()})
             group = f["runs"].create_group(group_name)
             group.attrs["experiment"] = experiment
             group.attrs["excitation"] = excitation if isinstance(excitation, str) else json.dumps(excitation)
@@ -406,38 +419,3 @@ class Recording:
                 for r in self.runs
             ],
         }
-
-
-#: a fixed-rate run with more overruns than this (percent of its samples) is marked ``late``
-LATE_OVERRUN_PCT = 1.0
-#: what a fixed-rate loop's run keeps about its timing (hilbench.runners.fixed_rate.LoopStats)
-LOOP_KEYS = ("paced", "overruns", "overrun_pct", "late", "lateness_p50_s", "lateness_p99_s", "lateness_max_s")
-
-
-def loop_figures(attrs: Any) -> dict[str, Any]:
-    """A fixed-rate run's timing figures from its attributes (numpy scalars as Python values)."""
-    out: dict[str, Any] = {}
-    for key in LOOP_KEYS:
-        if key in attrs:
-            value = attrs[key]
-            out[key] = value.item() if hasattr(value, "item") else value
-    return out
-
-
-def loop_line(figures: dict[str, Any]) -> str:
-    """One line of a fixed-rate run's timing: lateness p50/p99/max, overruns, and whether it was late."""
-    if not figures.get("paced", True):
-        return "loop: unpaced (as fast as the devices answered; no schedule)"
-
-    def t(s: Any) -> str:
-        s = float(s)
-        if s != s:
-            return "n/a"
-        return f"{s * 1e6:.3g} us" if s < 1e-3 else f"{s * 1e3:.3g} ms" if s < 1.0 else f"{s:.3g} s"
-
-    text = (f"loop: lateness p50 {t(figures.get('lateness_p50_s', float('nan')))}, p99 "
-            f"{t(figures.get('lateness_p99_s', float('nan')))}, max {t(figures.get('lateness_max_s', float('nan')))}; "
-            f"{int(figures.get('overruns', 0))} overruns ({float(figures.get('overrun_pct', 0.0)):.3g} %)")
-    if figures.get("late"):
-        text += f": LATE, the devices did not keep the rate (more than {LATE_OVERRUN_PCT:g} % of samples a period late)"
-    return text

@@ -31,6 +31,10 @@ RIG_SCHEMA = {
     "realtime": Key("bool", default=False, doc="pace a simulated rig at its sample rate"),
     "seed": Key("int", default=0),
     "extends": Key("str", default="", doc="base rig (name or path) whose tables this file overrides"),
+    "lock_memory": Key("bool", default=True, doc="real devices: lock the process's memory while a run's loop runs"),
+    "loop_priority": Key("int", default=0, minimum=0, maximum=99,
+                         doc="real devices: SCHED_FIFO priority of the loop's thread (0: the normal scheduler)"),
+    "loop_cpu": Key("int", default=-1, minimum=-1, doc="real devices: the CPU the loop's thread runs on (-1: any)"),
 }
 
 ACTUATOR_SCHEMA = {
@@ -112,6 +116,10 @@ class RigConfig:
     choices: str = ""
     realtime: bool = False
     seed: int = 0
+    #: what the operating system is asked for the fixed-rate loop (hilbench.runners.loop_tuning)
+    lock_memory: bool = True
+    loop_priority: int = 0
+    loop_cpu: int = -1
 
     @property
     def simulated(self) -> bool:
@@ -312,6 +320,9 @@ def load_rig(name_or_path: str | Path) -> RigConfig:
         sample_rate_hz=rig["sample_rate_hz"],
         realtime=rig["realtime"],
         seed=rig["seed"],
+        lock_memory=rig["lock_memory"],
+        loop_priority=rig["loop_priority"],
+        loop_cpu=rig["loop_cpu"],
         actuator=ActuatorConfig(**act),
         sensors=sensors,
         plant=plant,

@@ -60,8 +60,12 @@ def run_block(
     stop: Any,
     chunk_samples: int,
     on_chunk: Callable[[int], None] | None = None,
+    law: Any = None,
 ) -> int:
-    """Play one run on the rig's Player; returns the samples recorded. Raises on a fault."""
+    """Play one run on the rig's Player; returns the samples recorded. Raises on a fault.
+    ``law.played(start, block, applied)``, when given, adds its channels to each recorded segment
+    (e.g. the reference and error of a played feedforward tracking run); ``applied`` is the segment
+    as it passed the rig's safety path."""
     fs = rig.sample_rate_hz
     player = rig.actuator_device
     name = rig.actuator_name
@@ -95,6 +99,8 @@ def run_block(
                                              f"recorded no channel {source!r} (it recorded {', '.join(got)})")
             block[s.channel] = s.offset + s.scale * _fit(got[source], t_dev, n, fs)
         m = min(len(v) for v in block.values())
+        if law is not None:
+            block.update(law.played(done, {c: v[:m] for c, v in block.items()}, segment[:m]))
         # interlock: the first NaN or out-of-range sample of any sensor
         first_bad, why = m, ""
         for s in rig.config.sensors:

@@ -12,8 +12,8 @@ when the sample was taken, measured from the first deadline (the schedule, ``k /
 run's ``schedule`` attribute; a fit or a plot of a late run sees the rates that happened), and
 ``lateness`` (s): how long after its deadline the sample was taken. A sample later than one period
 is an overrun; the run's attrs keep ``overruns``, ``overrun_pct``, ``late`` (more than
-``LATE_OVERRUN_PCT`` % overran), ``lateness_p50_s``, ``lateness_p99_s`` (from a log-spaced
-histogram, 5 % bins) and ``lateness_max_s``. With ``pace=False`` (emulated rigs in tests,
+``LATE_OVERRUN_PCT`` % overran), ``lateness_p50_s``, ``lateness_p99_s`` and ``lateness_max_s``
+(:mod:`hilbench.recording.lateness`, accumulated by the writer process, not the loop). With ``pace=False`` (emulated rigs in tests,
 whose plant advances one sample per write whatever the time) the loop runs as fast as the devices
 answer and ``lateness`` is NaN: there is no schedule to be late for.
 
@@ -37,8 +37,13 @@ and records ``reference``, ``command`` and ``error``; the live identifier
 (:class:`hilbench.online.live.IdentifierLaw`) passes the excitation through and records its
 prediction and weights.
 
-The cyclic garbage collector is frozen for the loop (``gc.freeze``): the objects alive before the run
-are not scanned again, so collections stay short.
+The samples go straight into a slot of the writer process's shared ring
+(:mod:`hilbench.recording.writer_process`); at the end of a chunk the slot is handed over and the
+writer process appends and flushes it, so no HDF5 call happens in the loop's process while it runs.
+
+The cyclic garbage collector is held off for the run (``gc.disable`` after a full collection and
+``gc.freeze``): a collection would pause the loop at an arbitrary sample, and the loop creates no
+reference cycles, so nothing accumulates that a collection would free. It runs again after the run.
 """
 
 from __future__ import annotations
@@ -48,12 +53,12 @@ import math
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
-from hilbench.recording.hdf5 import CANONICAL_CHANNELS, LATE_OVERRUN_PCT, ChannelSpec, RunWriter
+from hilbench.recording.hdf5 import CANONICAL_CHANNELS, ChannelSpec
+from hilbench.recording.writer_process import StreamedRun
 from hilbench.rig.rig import Rig
 from hilbench.runners.faults import DeviceFault, InterlockTripped, LoopStalled, SafeStop
 
@@ -61,10 +66,6 @@ from hilbench.runners.faults import DeviceFault, InterlockTripped, LoopStalled, 
 DEFAULT_WATCHDOG_S = 2.0
 #: sleep until this long before a deadline, then spin
 DEFAULT_SPIN_S = 200e-6
-
-# lateness histogram: 1 ns .. 100 s, 20 bins per decade (p50/p99 to within ~12 %)
-_EDGES = np.concatenate([[-np.inf, 0.0], np.logspace(-9, 2, 11 * 20 + 1), [np.inf]])
-
 
 def lateness_channel() -> ChannelSpec:
     return ChannelSpec("lateness", "s", CANONICAL_CHANNELS["lateness"][1])
@@ -93,41 +94,6 @@ class LoopLaw(Protocol):
 
     def take(self, n: int) -> dict[str, np.ndarray]:
         """Its channels' values of the last ``n`` committed samples (the loop appends them)."""
-
-
-@dataclass
-class LoopStats:
-    period_s: float
-    paced: bool
-    samples: int = 0
-    overruns: int = 0
-    max_s: float = float("nan")
-    hist: np.ndarray = field(default_factory=lambda: np.zeros(_EDGES.size - 1, dtype=np.int64))
-
-    def add(self, lateness: np.ndarray) -> None:
-        if not self.paced or lateness.size == 0:
-            return
-        self.samples += lateness.size
-        self.overruns += int(np.count_nonzero(lateness > self.period_s))
-        top = float(lateness.max())
-        self.max_s = top if not self.max_s >= top else self.max_s
-        self.hist += np.histogram(lateness, _EDGES)[0]
-
-    def quantile(self, q: float) -> float:
-        if self.samples == 0:
-            return float("nan")
-        k = int(np.searchsorted(np.cumsum(self.hist), q * self.samples, side="left"))
-        hi = _EDGES[min(k + 1, _EDGES.size - 1)]
-        return float(min(hi, self.max_s))  # the bin's upper edge, never above the largest seen
-
-    def attrs(self) -> dict[str, Any]:
-        share = 100.0 * self.overruns / self.samples if self.samples else 0.0
-        return {"loop": "fixed-rate", "paced": self.paced, "overruns": self.overruns, "overrun_pct": share,
-                "late": bool(share > LATE_OVERRUN_PCT),
-                "time": "measured" if self.paced else "schedule",
-                "schedule": f"sample k due at k / {1.0 / self.period_s:g} Hz from the first deadline",
-                "lateness_p50_s": self.quantile(0.5), "lateness_p99_s": self.quantile(0.99),
-                "lateness_max_s": self.max_s}
 
 
 class Watchdog:
@@ -169,7 +135,7 @@ class Watchdog:
 def run_fixed_rate(
     rig: Rig,
     excitation: Any,
-    run: RunWriter,
+    run: StreamedRun,
     *,
     safe: SafeStop,
     stop: Any,
@@ -179,8 +145,8 @@ def run_fixed_rate(
     spin_s: float = DEFAULT_SPIN_S,
     on_chunk: Callable[[int], None] | None = None,
     law: LoopLaw | None = None,
-) -> tuple[int, LoopStats]:
-    """Play one run sample by sample; returns (samples recorded, stats). Raises on a fault.
+) -> int:
+    """Play one run sample by sample; returns the samples recorded. Raises on a fault.
     With ``law``, the run's source is a reference and the law computes each command (closed loop).
 
     ``safe.io_lock`` is held around each sample's device I/O, so the watchdog's ``rig.stop`` never
@@ -191,7 +157,6 @@ def run_fixed_rate(
     period_s = 1.0 / fs
     period_ns = 1e9 / fs
     spin_ns = int(spin_s * 1e9)
-    stats = LoopStats(period_s, pace)
     lock = safe.io_lock
     assert lock is not None
     periods = watchdog_periods if watchdog_periods is not None else max(50, math.ceil(DEFAULT_WATCHDOG_S * fs))
@@ -216,6 +181,8 @@ def run_fixed_rate(
         reads.append((name, driver, device.read, plan))
     channels = [c for _, _, _, plan in reads for c, *_ in plan]
     row: dict[str, float] = dict.fromkeys(channels, math.nan)  # this sample's values, for the law
+    rows = run.rows
+    row_input, row_lateness, row_time = rows["input"], rows["lateness"], rows["time"]
     law_command = law.command if law is not None else None
     law_commit = law.commit if law is not None else None
     perf = time.perf_counter_ns
@@ -224,23 +191,25 @@ def run_fixed_rate(
 
     done = 0
     watchdog = Watchdog(timeout_s, on_trip)
-    frozen = False
-    if gc.isenabled():
+    collecting = gc.isenabled()
+    if collecting:  # held off for the run: a collection is a pause of milliseconds at any sample
         gc.collect()
         gc.freeze()
-        frozen = True
-    t0 = perf() + int(2 * period_ns)  # the first deadline: two periods from now
+        gc.disable()
+    t0 = 0
     watchdog.start()
     try:
         for commands in excitation.chunks(fs, chunk_samples):
             if stop:
                 break
             m = commands.shape[0]
-            u = np.empty(m)
-            late = np.full(m, nan)
-            taken = np.empty(m)  # when each sample was taken, s from the first deadline
-            buf = {c: np.empty(m) for c in channels}
-            cols = [[buf[c] for c, *_ in plan] for _, _, _, plan in reads]
+            block = run.slot()  # the writer process's shared slot: the loop stores straight into it
+            u, late, taken = block[row_input], block[row_lateness], block[row_time]
+            if not pace:
+                late[:m] = nan
+            cols = [[block[rows[c]] for c, *_ in plan] for _, _, _, plan in reads]
+            if not t0:  # the first deadline one period after everything for the first chunk is ready
+                t0 = perf() + int(period_ns)
             j = 0
             try:
                 for j in range(m):
@@ -290,25 +259,24 @@ def run_fixed_rate(
                 j = m
             finally:
                 # every sample before a fault is kept
-                if j:
-                    data = {"time": taken[:j], "input": u[:j], "lateness": late[:j], **{c: buf[c][:j] for c in channels}}
-                    if law is not None:
-                        data.update(law.take(j))
-                    run.append(data)
-                    stats.add(late[:j])
-                    done += j
+                if j and law is not None:
+                    for name, values in law.take(j).items():
+                        block[rows[name], :j] = values
+                run.commit(j)
+                done += j
             if on_chunk is not None:
                 on_chunk(done)
             watchdog.last_ns = perf()  # appending and flushing are the loop's work too
     finally:
         watchdog.stop()
-        if frozen:
+        if collecting:
             gc.unfreeze()
+            gc.enable()
     if watchdog.error is not None:
         raise watchdog.error
     if watchdog.tripped:
         raise LoopStalled(act_name, safe.note or "watchdog tripped")
-    return done, stats
+    return done
 
 
 def _interlock_text(name: str, driver: str, channel: str, source: str, values: Any, v: float, lo: float,

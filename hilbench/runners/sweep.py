@@ -39,10 +39,12 @@ import numpy as np
 
 from hilbench.excitation.plan import PlannedRun, check_plan
 from hilbench.recording.hdf5 import RecordingWriter
+from hilbench.recording.writer_process import WriterProcess
 from hilbench.rig.rig import Rig
 from hilbench.runners.block import can_play, run_block
 from hilbench.runners.faults import DeviceFault, SafeStop, summary
 from hilbench.runners.fixed_rate import LoopLaw, lateness_channel, run_fixed_rate
+from hilbench.runners.loop_tuning import LoopTuning, apply_tuning
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -159,8 +161,8 @@ def run_plan(
     if mode == "fixed-rate" and rig.lockstep is not None:
         raise ValueError("fixed-rate mode needs per-sample devices; open a simulated rig with Rig(config, "
                          "lockstep=False) to step it sample by sample")
-    if law is not None and mode != "fixed-rate":
-        raise ValueError(f"a closed loop runs in fixed-rate mode, not {mode}")
+    if law is not None and not (mode == "fixed-rate" or (mode == "block" and hasattr(law, "played"))):
+        raise ValueError(f"a law runs in fixed-rate mode (or, when it has played(), in block mode), not {mode}")
     reads_reference = law is not None and law.reads_reference
     if not reads_reference:
         check_plan(runs, rig.actuator, rig.sample_rate_hz)
@@ -181,6 +183,10 @@ def run_plan(
     channels = rig.channels() + ([lateness_channel()] if mode == "fixed-rate" else [])
     if law is not None:
         channels += law.channels
+    # the fixed-rate loop's recording is written by a process of its own (no HDF5 in the loop's process)
+    stream = WriterProcess(len(channels), chunk_samples) if mode == "fixed-rate" else None
+    if stream is not None:
+        writer.helper_pids = [stream.pid]
     finish_attrs = getattr(law, "finish_attrs", None)
 
     def law_attrs(done: int) -> dict[str, Any]:
@@ -209,6 +215,8 @@ def run_plan(
                                  "approach_from": rig.last_applied, "mode": mode, **(run_attrs or {})},
                 )
                 previous_group = run.group_name
+                if stream is not None:
+                    run = stream.open_run(run, period_s=1.0 / rig.sample_rate_hz, paced=pace)
                 if law is not None and hasattr(law, "start_run"):
                     law.start_run()  # e.g. a fresh identifier per run
                 n_total = exc.n_samples(rig.sample_rate_hz)
@@ -237,12 +245,20 @@ def run_plan(
                                           f"approach the run's first value {first:g} "
                                           f"{rig.actuator.unit}", error) from error
                     if mode == "fixed-rate":
-                        done, stats = run_fixed_rate(
-                            rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
-                            watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law)
-                        stats_attrs = stats.attrs()
+                        # the lateness figures go into the run's attributes from the writer process
+                        tuning = LoopTuning(rig.config.lock_memory, rig.config.loop_priority, rig.config.loop_cpu)
+                        restore = apply_tuning(tuning) if pace else None
+                        stats_attrs["loop_tuning"] = tuning.summary() if pace else "none (unpaced)"
+                        try:
+                            done = run_fixed_rate(
+                                rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
+                                watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law)
+                        finally:
+                            if restore is not None:
+                                restore()
                     elif mode == "block":
-                        done = run_block(rig, exc, run, stop=stop, chunk_samples=chunk_samples, on_chunk=on_chunk)
+                        done = run_block(rig, exc, run, stop=stop, chunk_samples=chunk_samples, on_chunk=on_chunk,
+                                         law=law)
                     else:
                         done = _run_lockstep(rig, exc, run, stop=stop, chunk_samples=chunk_samples,
                                              realtime=realtime, on_chunk=on_chunk)
@@ -282,6 +298,8 @@ def run_plan(
             rig.stop(True)
     finally:
         rig.pace = paced_before
+        if stream is not None:
+            stream.close()
     return result
 
 

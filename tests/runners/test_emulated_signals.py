@@ -47,10 +47,12 @@ def model_file(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     return path, f"sine:amplitude={half:.6g},offset={mid:.6g},frequency_hz=0.5,phase_deg=-90,cycles=15"
 
 
-def _run_and_signal(emu, argv: list[str], sig: int, after_writes: int = 1500) -> subprocess.CompletedProcess:
+def _run_and_signal(emu, argv: list[str], sig: int, after_writes: int = 1500,
+                    group: bool = False) -> subprocess.CompletedProcess:
+    """``group``: signal the command's whole process group, as Ctrl-C in a terminal does."""
     aio = emu.emulators["aio"]
     proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", *argv], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=group)
     deadline = time.monotonic() + 120
     while len(aio.ao_writes) < after_writes:
         if proc.poll() is not None or time.monotonic() > deadline:
@@ -58,7 +60,10 @@ def _run_and_signal(emu, argv: list[str], sig: int, after_writes: int = 1500) ->
             out, err = proc.communicate()
             pytest.fail(f"the run did not get under way: {err.strip()[-2000:]}")
         time.sleep(0.02)
-    os.kill(proc.pid, sig)
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        os.kill(proc.pid, sig)
     out, err = proc.communicate(timeout=60)
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
 
@@ -91,6 +96,25 @@ def test_sigterm_stops_at_a_safe_point_and_the_run_is_kept_aborted_at_rest(kind,
     data = run.data()
     assert run.n_samples > 0 and all(v.size == run.n_samples for v in data.values())
     assert np.all(np.isfinite(data["output"]))
+
+
+def test_ctrl_c_reaches_the_writer_process_too_and_every_sample_is_kept(tmp_path):
+    """Ctrl-C signals the terminal's whole process group: the recording's writer process ignores it and
+    writes every sample the loop handed over before the run is closed ``aborted``."""
+    out = tmp_path / "sweep.h5"
+    with start_emulators(load_rig(TEMPLATE)) as emu:
+        done = _run_and_signal(emu, _command("sweep", config_file(emu, TEMPLATE, tmp_path), out, None),
+                               signal.SIGINT, group=True)
+        aio = emu.emulators["aio"]
+        assert abs(aio.last_ao) <= LSB  # ramped to rest
+        n_writes = len(aio.ao_writes)
+    assert "Traceback" not in done.stderr and done.returncode == 1, done.stderr
+    (run,) = Recording(out).runs
+    assert run.status == "aborted" and "SIGINT" in run.attrs["reason"]
+    data = run.data()
+    # every sample the loop took is on disk: the amplifier saw the run's writes plus the ramp to rest
+    assert 1500 <= run.n_samples <= n_writes and run.attrs["n_samples"] == run.n_samples
+    assert all(v.size == run.n_samples for v in data.values()) and np.all(np.isfinite(data["output"]))
 
 
 # SIGKILL of a sweep: tests/recording/test_recording.py (the same recording path, a simulated rig)

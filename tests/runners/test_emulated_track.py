@@ -7,6 +7,7 @@ sample before it; paced, the first sample is on time (the kernels compiled befor
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 from pathlib import Path
@@ -18,7 +19,7 @@ from drivers.base import DeviceLost
 from hilbench.errors import RunStopped
 from hilbench.excitation.plan import plan_from_compact
 from hilbench.identify.fitting import fit
-from hilbench.online import tracking
+from hilbench.online import tracking_devices
 from hilbench.online.tracking import track
 from hilbench.recording.hdf5 import Recording
 from hilbench.rig.config import load_rig
@@ -81,7 +82,7 @@ def test_track_on_devices_records_the_fixed_rate_loop_and_matches_the_simulated_
 def _inject_at(monkeypatch, sample: int, action) -> list[int]:
     """Run ``action()`` once, right after the law committed ``sample`` samples (inside the loop)."""
     fired: list[int] = []
-    commit = tracking.CompensatorLaw.commit
+    commit = tracking_devices.CompensatorLaw.commit
 
     def wrapped(self, reference, applied, row):
         commit(self, reference, applied, row)
@@ -89,7 +90,7 @@ def _inject_at(monkeypatch, sample: int, action) -> list[int]:
             fired.append(self.k)
             action()
 
-    monkeypatch.setattr(tracking.CompensatorLaw, "commit", wrapped)
+    monkeypatch.setattr(tracking_devices.CompensatorLaw, "commit", wrapped)
     return fired
 
 
@@ -158,3 +159,49 @@ def test_a_device_fault_reaches_the_user_as_one_line_naming_the_device_and_the_r
     assert info.value.exit_code == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "laser" in err and "serial link closed" in err and "t.h5 run r0001-track" in err
+
+
+@pytest.fixture(scope="module")
+def fitted_pi(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """A PMPI fit of the PI rig's simulated reference over +-1 V (where its plant rises), a 1 Hz reference inside it."""
+    folder = tmp_path_factory.mktemp("emulated-track-pi")
+    config = load_rig(RIGS["pi-gcs"])
+    recording = record_sim(config, plan_from_compact([SWEEP]), folder / "sweep.h5")
+    model = fit(recording, "pmpi").model
+    y = Recording(recording).runs[0].channel("output")
+    mid, half = 0.5 * (y.max() + y.min()), 0.5 * REFERENCE_SHARE * (y.max() - y.min())
+    reference = f"sine:amplitude={half:.6g},offset={mid:.6g},frequency_hz=1,phase_deg=-90,cycles=1"
+    return {"model": model, "reference": reference, "config": config}
+
+
+def test_on_a_controller_that_plays_waveforms_the_feedforward_is_played_and_read_back(fitted_pi, tmp_path):
+    """PI's wave generator plays the compensator's commands (computed before the run) and its data
+    recorder reads the output back: the run is recorded with the reference, command and error, and
+    tracks as the same compensator does on the simulated rig."""
+    sim = track(Rig(sim_reference(fitted_pi["config"])), fitted_pi["model"], fitted_pi["reference"])
+    out = tmp_path / "track.h5"
+    with emulated("pi-gcs") as (emu, rig):
+        result = track(rig, fitted_pi["model"], fitted_pi["reference"], output=out)
+        rig.stop(True)
+    (run,) = Recording(out).runs
+    assert run.status == "complete" and run.attrs["mode"] == "block" and "wave generator" in run.attrs["played"]
+    data = run.data()
+    for channel in ("reference", "command", "error", "input", "output"):
+        assert data[channel].size == result.reference.size
+    np.testing.assert_allclose(data["error"], data["reference"] - data["output"])
+    assert "wave generator" in result.compensator["played"] and not result.loop
+    assert json.loads(run.attrs["metrics"]) == pytest.approx(result.metrics)
+    assert not result.health["degraded"], result.health
+    print("rmse um: played", result.metrics["rmse"], "simulated", sim.metrics["rmse"])
+    assert result.metrics["rmse"] <= sim.metrics["rmse"] + 3 * 0.05 + 0.05
+
+
+def test_feedback_on_a_controller_that_plays_waveforms_is_refused_before_anything_moves(fitted_pi, tmp_path):
+    from hilbench.errors import UserError
+
+    with emulated("pi-gcs") as (emu, rig):
+        before = rig.last_applied
+        with pytest.raises(UserError, match="feedback needs the measured output inside the loop") as info:
+            track(rig, fitted_pi["model"], fitted_pi["reference"], feedback=True, output=tmp_path / "t.h5")
+        assert "--feedback" in info.value.hint and rig.last_applied == before
+    assert not (tmp_path / "t.h5").exists()

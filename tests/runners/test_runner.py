@@ -86,3 +86,41 @@ def test_sigint_aborts_makes_safe_and_closes(tmp_path):
     assert 0 < run.n_samples < 3001
     with h5py.File(out, "r") as f:  # closed cleanly: plain h5py opens it
         assert f[f"runs/{run.name}"].attrs["status"] == "aborted"
+
+
+def test_the_fixed_rate_loops_process_writes_no_hdf5_while_it_runs(write_rig, tmp_path, monkeypatch):
+    """The samples go to the writer process through shared slots; this process only writes attributes."""
+    import hilbench.recording.hdf5 as hdf5
+
+    rig = Rig(load_rig(write_rig()), lockstep=False)
+    runs = plan_from_compact(["sine:amplitude=2,frequency_hz=2,cycles=2,offset=1"])
+    writes = []
+    monkeypatch.setattr(h5py.Dataset, "__setitem__", lambda self, key, value: writes.append(self.name))
+    monkeypatch.setattr(hdf5.RunWriter, "append", lambda self, data: writes.append("append"))
+    result = run_plan(rig, runs, tmp_path / "r.h5", mode="fixed-rate", pace=False, chunk_samples=64)
+    assert writes == [] and result.status == "complete"
+    monkeypatch.undo()
+    run = Recording(tmp_path / "r.h5").runs[0]
+    assert run.status == "complete" and run.n_samples == 1001 and run.attrs["n_samples"] == 1001
+    np.testing.assert_allclose(run.channel("input"), runs[0].excitation.generate(1000.0))
+    np.testing.assert_array_equal(run.channel("time"), np.arange(1001) / 1000.0)
+
+
+def test_the_loop_asks_the_os_for_what_the_rig_config_says_and_undoes_it(write_rig, tmp_path):
+    """lock_memory / loop_priority / loop_cpu: each done or refused with its reason in the run's
+    attributes (permission depends on the machine), and the loop's thread is as before afterwards."""
+    import dataclasses
+
+    config = dataclasses.replace(load_rig(write_rig()), lock_memory=True, loop_priority=10, loop_cpu=0)
+    rig = Rig(config, lockstep=False)
+    affinity, policy = os.sched_getaffinity(0), os.sched_getscheduler(0)
+    run_plan(rig, plan_from_compact(["sine:amplitude=1,frequency_hz=5,cycles=1"]), tmp_path / "r.h5",
+             mode="fixed-rate", pace=True)
+    assert os.sched_getaffinity(0) == affinity and os.sched_getscheduler(0) == policy
+    run = Recording(tmp_path / "r.h5").runs[0]
+    notes = run.attrs["loop_tuning"]
+    assert ("memory locked" in notes) != ("memory not locked" in notes)
+    assert ("pinned to CPU 0" in notes) and ("SCHED_FIFO priority 10" in notes or "priority 10 refused" in notes)
+    from hilbench.recording.lateness import loop_figures, loop_line
+
+    assert notes in loop_line(loop_figures(run.attrs))

@@ -1,0 +1,117 @@
+"""The writer process of the fixed-rate loop: slots handed over are written, whatever the loop's process does."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import h5py
+import numpy as np
+import pytest
+
+from hilbench.recording.hdf5 import ChannelSpec, Recording, RecordingWriter, RunWriter
+from hilbench.recording.recover import write_flags
+from hilbench.recording.writer_process import RecordingWriterError, WriterProcess
+
+CHANNELS = [ChannelSpec("time", "s"), ChannelSpec("input", "V"), ChannelSpec("output", "um")]
+
+
+def begin(writer: RecordingWriter, label: str = "run") -> RunWriter:
+    return writer.begin_run(label, CHANNELS, experiment="test", excitation={}, sample_rate_hz=1000.0)
+
+
+@pytest.mark.parametrize("ordered", [True, False], ids=["shared-counters", "socket"])
+def test_more_chunks_than_slots_are_all_written_in_order_and_the_status_comes_last(tmp_path, ordered):
+    path = tmp_path / "r.h5"
+    writer = RecordingWriter(path)
+    rng = np.random.default_rng(0)
+    with WriterProcess(len(CHANNELS), chunk=37, slots=3, ordered=ordered) as stream:
+        writer.helper_pids = [stream.pid]
+        expected = []
+        for label in ("a", "b"):  # two runs through one process
+            run = stream.open_run(begin(writer, label))
+            pieces = []
+            for _ in range(20):  # 20 chunks through 3 slots: the loop waits for slots to come back
+                n = int(rng.integers(0, 38))
+                block = run.slot()
+                values = rng.standard_normal((3, n))
+                block[:, :n] = values
+                run.commit(n)
+                pieces.append(values)
+            run.append({"time": np.arange(100.0), "input": np.ones(100), "output": -np.ones(100)})
+            pieces.append(np.vstack([np.arange(100.0), np.ones(100), -np.ones(100)]))
+            run.finish("complete", extra_attrs={"note": label})
+            expected.append(np.hstack(pieces))
+    rec = Recording(path)
+    assert [r.status for r in rec] == ["complete", "complete"]
+    for run, values in zip(rec, expected):
+        data = run.data()
+        assert run.n_samples == values.shape[1] and run.attrs["n_samples"] == values.shape[1]
+        np.testing.assert_array_equal(np.vstack([data[c.name] for c in CHANNELS]), values)
+    assert write_flags(path) == 0  # closed cleanly: plain h5py opens it
+    with h5py.File(path, "r") as f:
+        assert f["runs/0002-b"].attrs["note"] == "b"
+
+
+def test_the_writer_keeps_what_it_was_given_when_the_loops_process_is_killed(tmp_path):
+    path = tmp_path / "r.h5"
+    code = f"""
+import os, numpy as np
+from hilbench.recording.hdf5 import RecordingWriter, ChannelSpec
+from hilbench.recording.writer_process import WriterProcess
+w = RecordingWriter({str(path)!r})
+stream = WriterProcess(2, chunk=100, slots=4)
+w.helper_pids = [stream.pid]
+run = stream.open_run(w.begin_run('a', [ChannelSpec('time', 's'), ChannelSpec('input', 'V')], experiment='t',
+                                  excitation={{}}, sample_rate_hz=1.0))
+for k in range(30):
+    block = run.slot()
+    block[0, :100] = np.arange(100 * k, 100 * (k + 1))
+    block[1, :100] = -block[0, :100]
+    run.commit(100)
+print(stream.pid, flush=True)
+os.kill(os.getpid(), 9)
+"""
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == -9, done.stderr
+    writer_pid = int(done.stdout.split()[0])
+    # the writer process writes the 30 chunks it was handed, closes the file and exits
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        try:
+            os.kill(writer_pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        pytest.fail("the writer process outlived its loop by 30 s")
+    (run,) = Recording(path).runs
+    assert run.status == "running" and run.n_samples == 3000
+    np.testing.assert_array_equal(run.channel("time"), np.arange(3000.0))
+    np.testing.assert_array_equal(run.channel("input"), -np.arange(3000.0))
+    assert write_flags(path) == 0  # the writer closed the file: no stale SWMR flags
+
+
+@pytest.mark.parametrize("ordered", [True, False], ids=["shared-counters", "socket"])
+def test_a_writer_process_that_dies_fails_the_run_with_its_reason_and_keeps_what_it_wrote(tmp_path, ordered):
+    path = tmp_path / "r.h5"
+    writer = RecordingWriter(path)
+    with WriterProcess(len(CHANNELS), chunk=10, slots=2, ordered=ordered) as stream:
+        run = stream.open_run(begin(writer))
+        block = run.slot()
+        block[:, :10] = 1.0
+        run.commit(10)
+        time.sleep(3 * run.run.flush_interval_s)  # no more appends: the writer flushes by itself
+        stream._process.kill()  # what the OOM killer or a crash of the writer does
+        stream._process.wait(10)
+        with pytest.raises(RecordingWriterError, match="writer process ended"):
+            for _ in range(3):  # the pipe is closed: handing over or waiting for a slot says so
+                run.slot()
+                run.commit(10)
+        with pytest.raises(RecordingWriterError):
+            run.finish("complete")
+    (kept,) = Recording(path).runs
+    assert kept.status == "failed" and "writer process" in kept.attrs["reason"]
+    assert kept.n_samples >= 10  # what was written before it died
