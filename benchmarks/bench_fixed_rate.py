@@ -51,9 +51,10 @@ import _common as C
 TEMPLATE = Path(__file__).resolve().parents[1] / "configs" / "templates" / "gmm-modbus-keyence.toml"
 
 
-def rig_file(folder: Path, fs: float) -> Path:
-    text = C.rig_toml().replace(f"sample_rate_hz = {C.SAMPLE_RATE_HZ!r}", f"sample_rate_hz = {fs!r}")
-    path = folder / f"bench-rig-{int(fs)}.toml"
+def rig_file(folder: Path, fs: float, priority: int = 0) -> Path:
+    text = C.rig_toml().replace(f"sample_rate_hz = {C.SAMPLE_RATE_HZ!r}",
+                                f"sample_rate_hz = {fs!r}\nloop_priority = {priority}")
+    path = folder / f"bench-rig-{int(fs)}-{priority}.toml"
     path.write_text(text, encoding="utf-8")
     return path
 
@@ -102,8 +103,21 @@ def time_parts(path: Path, n: int) -> dict[str, float]:
 
 
 def bare_loop(fs: float, seconds: float, io: Callable[[], None] | None = None,
-              spin_s: float = 200e-6) -> np.ndarray:
-    """The machine's limit: the fixed-rate loop's pacing and nothing else (``io``: one device round trip)."""
+              spin_s: float = 200e-6, priority: int = 0) -> np.ndarray:
+    """The machine's limit: the fixed-rate loop's pacing and nothing else (``io``: one device round trip),
+    under the same scheduling, timer slack and spin as the hilbench loop it is compared with
+    (``priority``: SCHED_FIFO)."""
+    from hilbench.runners.loop_tuning import LoopTuning, apply_tuning, spin_for
+
+    tuning = LoopTuning(lock_memory=True, priority=priority)
+    restore = apply_tuning(tuning)
+    try:
+        return _bare(fs, seconds, io, spin_for(1.0 / fs, spin_s, tuning.realtime))
+    finally:
+        restore()
+
+
+def _bare(fs: float, seconds: float, io: Callable[[], None] | None, spin_s: float) -> np.ndarray:
     n = int(round(fs * seconds))
     late = np.empty(n)
     period_ns = 1e9 / fs
@@ -179,7 +193,7 @@ def start_emulate(template: Path, seconds: float) -> Emulated:
     return Emulated(proc, dataclasses.replace(config, devices=devices))
 
 
-def device_pair(config: Any, folder: Path, seconds: float, repeats: int) -> dict[str, Any]:
+def device_pair(config: Any, folder: Path, seconds: float, repeats: int, priority: int = 0) -> dict[str, Any]:
     """The hilbench loop and the bare loop with the same device round trip, at half the rate the rate
     check would let the devices run (so that the comparison is of the loops, not of the devices' p99)."""
     from hilbench.excitation.plan import plan_from_compact
@@ -194,7 +208,7 @@ def device_pair(config: Any, folder: Path, seconds: float, repeats: int) -> dict
         trips = time_round_trips(rig, 500)
         fs = min(_round_down(trips.max_rate_hz / 2), 1000.0)
         rig.close()
-        rig = Rig(dataclasses.replace(config, sample_rate_hz=fs))
+        rig = Rig(dataclasses.replace(config, sample_rate_hz=fs, loop_priority=priority))
         C.note(f"[fixed-rate] emulated Modbus AIO + Keyence at {fs:g} Hz (round trip p99 "
                f"{trips.p(0.99) * 1e3:.3g} ms) for {seconds:g} s ...")
         runs = plan_from_compact([f"sine:amplitude=1,frequency_hz={5.0 / seconds!r},cycles=5"])
@@ -215,8 +229,8 @@ def device_pair(config: Any, folder: Path, seconds: float, repeats: int) -> dict
                 for read in reads:
                     read()
 
-            bare.append(bare_loop(fs, seconds, io))
-        return {"round_trip": trips.describe(), **compare(ours, bare, fs)}
+            bare.append(bare_loop(fs, seconds, io, priority=priority))
+        return {"round_trip": trips.describe(), "loop_priority": priority, **compare(ours, bare, fs)}
     finally:
         rig.close()
 
@@ -270,6 +284,7 @@ def run_loop(path: Path, out: Path, seconds: float, pace: bool) -> dict[str, Any
         result.update({
             **pacing_figures(run.channel("lateness"), fs),
             "run_attrs": {k: float(run.attrs[k]) for k in ("lateness_p50_s", "lateness_p99_s", "lateness_max_s")},
+            "loop_tuning": str(run.attrs.get("loop_tuning", "")),
             "period_us": round(1e6 / fs, 1),
         })
     else:
@@ -278,7 +293,8 @@ def run_loop(path: Path, out: Path, seconds: float, pace: bool) -> dict[str, Any
     return result
 
 
-def run(seconds: float, rates: list[float], device: bool = True, repeats: int = 3) -> dict[str, Any]:
+def run(seconds: float, rates: list[float], device: bool = True, repeats: int = 3,
+        priorities: tuple[int, ...] = (0, 50)) -> dict[str, Any]:
     result: dict[str, Any] = {"benchmark": "fixed_rate_loop", "environment": C.environment(), "seconds": seconds,
                               "repeats": repeats}
     with C.make_tempdir("hilbench-bench-fixed-rate-") as tmp:
@@ -289,19 +305,28 @@ def run(seconds: float, rates: list[float], device: bool = True, repeats: int = 
         parts = time_parts(warm, 20_000)
         unpaced = run_loop(rig_file(folder, 10_000.0), folder / "unpaced.h5", 2.0, pace=False)
         loops = {}
-        for fs in rates:
-            C.note(f"[fixed-rate] {fs:g} Hz: hilbench then the bare loop, {seconds:g} s each, {repeats} times ...")
-            ours, bare = [], []
-            for k in range(repeats):
-                ours.append(run_loop(rig_file(folder, fs), folder / f"paced-{int(fs)}-{k}.h5", seconds, pace=True))
-                bare.append(bare_loop(fs, seconds))
-            loops[f"{fs:g}_hz"] = compare(ours, bare, fs)
-        C.note(f"[fixed-rate] 1000 Hz with and without hilbench watch following the file, {repeats} times ...")
-        viewer = viewer_pair(rig_file(folder, 1000.0), folder, seconds, repeats)
+        for priority in priorities:
+            sched = f"SCHED_FIFO {priority}" if priority else "the normal scheduler"
+            for fs in rates:
+                C.note(f"[fixed-rate] {fs:g} Hz under {sched}: hilbench then the bare loop, {seconds:g} s each, "
+                       f"{repeats} times ...")
+                ours, bare = [], []
+                for k in range(repeats):
+                    ours.append(run_loop(rig_file(folder, fs, priority), folder / f"paced-{int(fs)}-{priority}-{k}.h5",
+                                         seconds, pace=True))
+                    bare.append(bare_loop(fs, seconds, priority=priority))
+                loops[f"{fs:g}_hz" + (f"_fifo{priority}" if priority else "")] = {
+                    "scheduling": sched, "loop_tuning": ours[-1]["loop_tuning"], **compare(ours, bare, fs)}
+        viewer = {}
+        for priority in priorities:
+            C.note(f"[fixed-rate] 1000 Hz with and without hilbench watch following the file, priority {priority}, "
+                   f"{repeats} times ...")
+            viewer["fifo" + str(priority) if priority else "normal"] = viewer_pair(
+                rig_file(folder, 1000.0, priority), folder, seconds, repeats)
         if device:
             emu = start_emulate(TEMPLATE, 120.0 + 4 * seconds * repeats)
             try:
-                loops["emulated_device"] = device_pair(emu.config, folder, seconds, repeats)
+                loops["emulated_device"] = device_pair(emu.config, folder, seconds, repeats, max(priorities))
             finally:
                 emu.close()
         C.note("[fixed-rate] sleep granularity ...")
@@ -320,7 +345,10 @@ def run(seconds: float, rates: list[float], device: bool = True, repeats: int = 
         "0.3-1 ms and sets the limit on hardware). Pacing sleeps until 200 us before a deadline and spins "
         "the rest, because time.sleep overshoots by tens of us (sleep_overshoot_us). The recording is written "
         "by a process of its own (the loop hands over 0.2 s chunks through shared memory), the garbage "
-        "collector is held off; what remains above the bare loop is the loop's per-sample Python (the "
+        "collector is held off. Under the normal scheduler any other busy process (a viewer, the writer, "
+        "an editor) can delay the loop's wake-up by milliseconds; with [rig] loop_priority (SCHED_FIFO) the "
+        "loop preempts them at once. "
+        "What remains above the bare loop is the loop's per-sample Python (the "
         "safety path, device calls, interlocks) delaying the next wake-up, and other processes taking "
         "the core (2 shared cores here)."
     )
@@ -334,6 +362,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--quick", action="store_true", help="1 s per rate, one repeat")
     ap.add_argument("--repeats", type=int, default=3, help="hilbench / bare loop pairs per case (default 3)")
     ap.add_argument("--no-device", action="store_true", help="skip the emulated device round trip")
+    ap.add_argument("--priority", type=int, default=50, help="also run every case with the loop at this SCHED_FIFO "
+                    "priority ([rig] loop_priority; refused without the permission, which the JSON says); 0: skip")
     return ap.parse_args(argv)
 
 
@@ -343,7 +373,8 @@ def main(argv: list[str] | None = None) -> None:
     rates = [float(r) for r in a.rates.split(",") if r.strip()]
     with C.make_tempdir("hilbench-bench-fixed-rate-cache-") as cache:
         C.use_private_numba_cache(cache)
-        result = run(seconds, rates, device=not a.no_device, repeats=1 if a.quick else max(1, a.repeats))
+        result = run(seconds, rates, device=not a.no_device, repeats=1 if a.quick else max(1, a.repeats),
+                     priorities=(0, a.priority) if a.priority > 0 else (0,))
     print(json.dumps(result, indent=2))
 
 

@@ -77,7 +77,10 @@ def user_errors(func: F) -> F:
             if _state["debug"]:
                 traceback.print_exc()
             recorded = getattr(exc, "hilbench_recorded", None)
-            fail(summary(exc), f"recorded: {recorded}" if recorded else None, code=1)
+            device = getattr(exc, "hilbench_device", "")
+            line = summary(exc)
+            fail(f"device {device!r}: {line}" if device and f"'{device}'" not in line else line,
+                 f"recorded: {recorded}" if recorded else None, code=1)
         except OSError as exc:  # a path the system refuses: missing folder, permissions, full disk
             if exc.filename is None:
                 raise

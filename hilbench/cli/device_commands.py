@@ -242,6 +242,8 @@ def run(
         False, "--json", help="Print one JSON document on stdout (recordings, reported results); the script's "
         "own printing goes to stderr.",
     ),
+    allow_late: bool = typer.Option(False, "--allow-late", help="On real devices, sweep and track even when their "
+                                    "measured round trip cannot hold the rig's rate (the overruns are recorded)."),
 ) -> None:
     """Run an experiment script on a rig with the scripting API (hilbench.runners.script).
 
@@ -260,7 +262,7 @@ def run(
     started = time.monotonic()
     try:
         outcome = run_script(script, rig, output_dir, quick=quick or quick_from_env(), args=args,
-                             script_stdout=sys.stderr if as_json else None)
+                             script_stdout=sys.stderr if as_json else None, check_rate=not allow_late)
     except ScriptFailed as exc:
         if _debug():
             traceback.print_exception(exc.error)

@@ -13,6 +13,15 @@ rig gets it):
 * ``loop_cpu`` (default -1: any): the core the loop's thread runs on (``sched_setaffinity``); the
   watchdog thread and the recording's writer process stay free to run elsewhere.
 
+Always, on Linux: the loop thread's timer slack is set to 1 ns (``prctl(PR_SET_TIMERSLACK)``; the
+default 50 us is added to every sleep of an ordinary thread), so that its sleeps end when asked.
+
+Under SCHED_FIFO the loop must still sleep a little every period: the kernel throttles real-time
+threads that use more than 95 % of a second (``sched_rt_runtime_us``), a stall of 50 ms every
+second for a thread that spins through every period. :func:`spin_for` keeps the spin before each
+deadline under three quarters of a period there (the rest of the period, less the
+per-sample work, is slept).
+
 Each is tried, and what happened goes into the run's ``loop_tuning`` attribute and the command's
 output: permission is often missing (real-time priority and memory locking need root, the
 ``CAP_SYS_NICE``/``CAP_IPC_LOCK`` capabilities or ``ulimit -r``/``-l``), and that is said, not
@@ -29,6 +38,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 _MCL_CURRENT, _MCL_ONFAULT = 1, 4
+_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
 
 
 @dataclass
@@ -38,6 +48,8 @@ class LoopTuning:
     cpu: int = -1
     #: what was done or refused, one phrase each (filled by :func:`apply_tuning`)
     notes: list[str] = field(default_factory=list)
+    #: the loop's thread runs under SCHED_FIFO (set by :func:`apply_tuning`)
+    realtime: bool = False
 
     def summary(self) -> str:
         return "; ".join(self.notes) if self.notes else "none asked"
@@ -66,8 +78,13 @@ def apply_tuning(tuning: LoopTuning) -> Callable[[], None]:
     undo: list[Callable[[], None]] = []
     notes = tuning.notes
     notes.clear()
+    tuning.realtime = False
+    libc = _libc()
+    if libc is not None and hasattr(libc, "prctl"):
+        slack = libc.prctl(_PR_GET_TIMERSLACK, 0, 0, 0, 0)
+        if slack >= 0 and libc.prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0) == 0:
+            undo.append(lambda: libc.prctl(_PR_SET_TIMERSLACK, slack, 0, 0, 0))
     if tuning.lock_memory:
-        libc = _libc()
         if libc is None or not hasattr(libc, "mlockall"):
             notes.append("memory not locked: mlockall not available here")
         elif libc.mlockall(_MCL_CURRENT | _MCL_ONFAULT) != 0:
@@ -96,6 +113,7 @@ def apply_tuning(tuning: LoopTuning) -> Callable[[], None]:
             try:
                 os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(tuning.priority))
                 notes.append(f"loop thread at SCHED_FIFO priority {tuning.priority}")
+                tuning.realtime = True
                 undo.append(lambda: os.sched_setscheduler(0, policy, param))
             except OSError as exc:
                 notes.append(f"real-time priority {tuning.priority} refused: {_why(exc.errno or 0)}")
@@ -108,3 +126,9 @@ def apply_tuning(tuning: LoopTuning) -> Callable[[], None]:
                 pass
 
     return restore
+
+
+def spin_for(period_s: float, spin_s: float, realtime: bool) -> float:
+    """The spin before each deadline: ``spin_s``, and under SCHED_FIFO at most 3/4 of a period (see the
+    module docstring)."""
+    return min(spin_s, 0.75 * period_s) if realtime else spin_s

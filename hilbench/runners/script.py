@@ -143,8 +143,11 @@ class Bench:
 
     def __init__(self, rig: Any, output_dir: str | os.PathLike[str], *, experiment: str = "script",
                  quick: bool = False, args: Sequence[str] = (), log_stream: TextIO | None = None,
-                 outcome: ScriptOutcome | None = None):
+                 outcome: ScriptOutcome | None = None, check_rate: bool = True):
         self.rig = rig
+        #: on real devices, paced: sweeps and tracking first time the devices and refuse a rate they
+        #: cannot hold (hilbench.runners.rate_check); `hilbench run --allow-late` turns it off
+        self.check_rate = bool(check_rate)
         self.config = rig.config
         self.output_dir = Path(output_dir).resolve()  # a script that changes directory still finds it
         self.output_dir.mkdir(parents=True, exist_ok=True)
@@ -212,7 +215,7 @@ class Bench:
         out.parent.mkdir(parents=True, exist_ok=True)
         self._check_open()
         self.log(f"{self.config.name}: {len(runs)} run(s) -> {out}")
-        result = run_plan(self.rig, runs, out, experiment=self.experiment, **options)
+        result = run_plan(self.rig, runs, out, experiment=self.experiment, check_rate=self.check_rate, **options)
         self._outcome.recordings.append({
             "file": str(out), "rig": self.config.name, "status": result.status,
             "runs": [{"name": r.group, "label": r.label, "status": r.status, "samples": r.samples} for r in result.runs],
@@ -274,6 +277,7 @@ class Bench:
         self._check_open()
         if "output" in kw:
             kw["output"] = self.path(kw["output"])
+        kw.setdefault("check_rate", self.check_rate)
         return tracking.track(self.rig, model, reference, **kw)
 
     # -- more rigs, messages, results -----------------------------------------------------------------
@@ -284,7 +288,7 @@ class Bench:
 
         self._check_open()
         other = Bench(Rig(load_rig(name_or_path)), self.output_dir, experiment=self.experiment, quick=self.quick,
-                      args=self.args, log_stream=self._log_stream, outcome=self._outcome)
+                      args=self.args, log_stream=self._log_stream, outcome=self._outcome, check_rate=self.check_rate)
         self._others.append(other)
         self.log(f"opened rig {other.config.name}")
         return other
@@ -387,11 +391,14 @@ def run_script(
     args: Sequence[str] = (),
     script_stdout: TextIO | None = None,
     log_stream: TextIO | None = None,
+    check_rate: bool = True,
 ) -> ScriptOutcome:
     """Open the rig once, run the script with ``bench`` in its globals, always make the rig safe.
 
     ``rig``: a config path or built-in rig name; ``None`` takes the script's ``RIG = "..."``.
     ``script_stdout``: where the script's ``print`` goes (``hilbench run --json`` sends it to stderr).
+    ``check_rate``: on real devices, each sweep and tracking run first times the devices and refuses a
+    rate they cannot hold (``hilbench run --allow-late``: False).
     Raises :class:`UserError` (the script's or the API's), :class:`ScriptFailed` (any other exception
     of the script; the outcome is attached as ``outcome``) or ``KeyboardInterrupt``; in every case
     the rig was ramped to rest and closed, and the recordings closed with their status.
@@ -409,7 +416,7 @@ def run_script(
     experiment = path.stem
     outcome = ScriptOutcome(str(path), config.name, str(output_dir))
     bench = Bench(Rig(config), output_dir, experiment=experiment, quick=quick, args=args, log_stream=log_stream,
-                  outcome=outcome)
+                  outcome=outcome, check_rate=check_rate)
     success = False
     _CURRENT.append(bench)
     try:

@@ -43,8 +43,8 @@ from hilbench.recording.writer_process import WriterProcess
 from hilbench.rig.rig import Rig
 from hilbench.runners.block import can_play, run_block
 from hilbench.runners.faults import DeviceFault, SafeStop, summary
-from hilbench.runners.fixed_rate import LoopLaw, lateness_channel, run_fixed_rate
-from hilbench.runners.loop_tuning import LoopTuning, apply_tuning
+from hilbench.runners.fixed_rate import DEFAULT_SPIN_S, LoopLaw, lateness_channel, run_fixed_rate
+from hilbench.runners.loop_tuning import LoopTuning, apply_tuning, spin_for
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -252,7 +252,8 @@ def run_plan(
                         try:
                             done = run_fixed_rate(
                                 rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
-                                watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law)
+                                watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law,
+                                spin_s=spin_for(1.0 / rig.sample_rate_hz, DEFAULT_SPIN_S, tuning.realtime))
                         finally:
                             if restore is not None:
                                 restore()
@@ -291,7 +292,7 @@ def run_plan(
                     if isinstance(error, DeviceFault):
                         # the caller sees the driver's own exception (DeviceLost, DeviceTimeout, ...);
                         # the recording's reason says which of the rig's devices it was
-                        _tell_recorded(error.error, recorded)
+                        _tell_recorded(error.error, recorded, device=error.device)
                         raise error.error from None
                     _tell_recorded(error, recorded)
                     raise
@@ -303,9 +304,13 @@ def run_plan(
     return result
 
 
-def _tell_recorded(error: BaseException, recorded: str) -> None:
+def _tell_recorded(error: BaseException, recorded: str, device: str = "") -> None:
+    """What the command line says besides the error: where the samples are and (a driver's own
+    exception) which of the rig's devices raised it."""
     try:
         error.hilbench_recorded = recorded  # type: ignore[attr-defined]
+        if device:
+            error.hilbench_device = device  # type: ignore[attr-defined]
     except (AttributeError, TypeError):  # an exception type with __slots__
         pass
 

@@ -57,6 +57,33 @@ def test_sweep_check_refuses_a_rate_the_devices_cannot_hold_and_passes_one_they_
         assert late.returncode == 0 and json.loads(late.stdout)["round_trips"]["max_rate_hz"] < 50000.0
 
 
+def test_an_experiment_script_is_refused_the_same_way_unless_allow_late(tmp_path):
+    """`hilbench run`: a script's sweep on real devices times them first and is refused (exit 2, one line)
+    at a rate they cannot hold, before anything moves; --allow-late runs it and records the overruns."""
+    script = tmp_path / "loops.py"
+    script.write_text(f"bench.sweep(bench.plan({PLAN!r}), 'loops.h5')\n", encoding="utf-8")
+    with start_emulators(load_rig(TEMPLATE)) as emu:
+        config = _config_for(emu, 50000.0, tmp_path)
+
+        def run(*extra: str) -> subprocess.CompletedProcess:
+            return subprocess.run([sys.executable, "-m", "hilbench.cli", "run", str(script), "--rig", str(config),
+                                   "-o", str(tmp_path / "out"), *extra], capture_output=True, text=True, timeout=300)
+
+        refused = run()
+        assert refused.returncode == 2 and "sample_rate_hz = 50000 cannot be held" in refused.stderr, refused.stderr
+        # nothing moved: the timing wrote the held rest value (0 A, one AO count at most)
+        assert all(abs(v) <= 20.0 / 65535 for v in emu.emulators["aio"].ao_writes)
+        assert not (tmp_path / "out" / "loops.h5").exists()
+        short = PLAN.replace("cycles=1", "duration_s=0.05")
+        script.write_text(f"bench.sweep(bench.plan({short!r}), 'loops.h5')\n", encoding="utf-8")
+        allowed = run("--allow-late")
+    assert allowed.returncode == 0, allowed.stderr
+    from hilbench.recording.hdf5 import Recording
+
+    (kept,) = Recording(tmp_path / "out" / "loops.h5").runs
+    assert kept.status == "complete" and kept.attrs["late"]  # 50 kHz through Modbus: recorded late, said
+
+
 def test_timing_holds_the_actuator_still(tmp_path):
     with start_emulators(load_rig(TEMPLATE)) as emu:
         with Rig(emu.config_for_emulators()) as rig:

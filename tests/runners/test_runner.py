@@ -124,3 +124,5 @@ def test_the_loop_asks_the_os_for_what_the_rig_config_says_and_undoes_it(write_r
     from hilbench.recording.lateness import loop_figures, loop_line
 
     assert notes in loop_line(loop_figures(run.attrs))
+    # the first deadline is set once the first chunk is ready: the first sample is less than a period late
+    assert 0.0 <= run.channel("lateness")[0] < 1.0 / config.sample_rate_hz
