@@ -50,8 +50,10 @@ def time_rig(config: Any, round_trips: int) -> dict[str, Any]:
         time_round_trips(rig, 50)  # connections warm
         trips = time_round_trips(rig, round_trips)
     described = trips.describe()
-    return {**{k: (round(v * 1e3, 4) if k.endswith("_s") else v) for k, v in described.items() if k != "devices"},
-            "devices_ms": {d: {k: round(v * 1e3, 4) for k, v in f.items()} for d, f in described["devices"].items()},
+    return {**{(k[:-2] + "_ms" if k.endswith("_s") else k): (round(v * 1e3, 4) if k.endswith("_s") else v)
+               for k, v in described.items() if k != "devices"},
+            "devices_ms": {d: {k[:-2] + "_ms": round(v * 1e3, 4) for k, v in f.items()}
+                           for d, f in described["devices"].items()},
             "max_rate_hz": round(trips.max_rate_hz, 1), "set_at_most_hz": _round_down(trips.max_rate_hz)}
 
 
@@ -60,7 +62,7 @@ def run(round_trips: int) -> dict[str, Any]:
     from hilbench.rig.emulation import start_emulators
 
     out: dict[str, Any] = {"benchmark": "transport_rates", "environment": C.environment(), "round_trips": round_trips,
-                           "units": "round trips in ms (keys ending _s are converted); rates in Hz", "rigs": {}}
+                           "units": "round trips in ms; rates in Hz", "rigs": {}}
     for name, (path, where) in RIGS.items():
         C.note(f"[transports] {name}: {round_trips} round trips ...")
         if where == "separate process":
