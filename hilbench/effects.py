@@ -60,21 +60,22 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     # rows better, and the rows they fit too: the M-play's polynomial (one-sided, asymmetric loops), the ISSF-Duhem with a
     # dead-zone (the butterfly loop of an unbiased magnetostrictive actuator, strain even in the
     # current, paper 001), with a Gompertz shape, Bouc-Wen. Play operators cannot make a butterfly
-    # at all (randomized seed 266: linear 8.32 um, pi 8.31, duhem-d 0.40)
+    # at all: their loops are odd (on a butterfly rig: linear 8.32 um, pi 8.31, duhem-d 0.40)
     Effect("hysteresis", "rate-independent memory", "hysteresis", "pi",
            forms=("pi", "pmpi", "duhem-d", "duhem-g", "bouc-wen"), form_choice="inner-split-both",
            requires=(MEMORYLESS_BASE,), signature="direction", papers="all"),
     # asymmetry: v^2 first; v^2..v^4 must predict the training rows at the largest drive better from
     # the rows below them: higher powers fitted over one range swing beyond it, and test runs often
-    # drive further (randomized seed 2129: 0.175 against 0.040 um on validation, decision 0046)
+    # drive further (an even v^2 on a one-sided drive: 0.175 against 0.040 um on validation,
+    # decision 0046)
     Effect("asymmetry", "loops not centrally symmetric: memoryless polynomial shaping", "asymmetry", "asymmetry",
            forms=("asymmetry(order=2)", "asymmetry"), form_choice="inner-range",
            built_into=("mpi", "pmpi"), signature="even-input", papers="002, 004, 000"),
     # saturation: of the hysteresis output (tanh, or a knee of searched sharpness: copies of the
     # hysteresis columns), or of the drive before the hysteresis (a Hammerstein knee, decision
     # 0039: no columns, the base's thresholds met at other commands); the output forms flatten
-    # the loop but cannot move where the operators turn (randomized seed 805: validation 32 %
-    # worse with them)
+    # the loop but cannot move where the operators turn (a drive that flattens before the
+    # actuator's memory: validation 32 % worse with them)
     Effect("saturation", "loop flattening at large drive, on the input or on the hysteresis output", "saturation",
            "saturation", forms=("saturation", "saturation(form=knee)", "saturation(form=hammerstein)",
                                  "saturation(form=wiener)"),
@@ -82,12 +83,12 @@ EFFECTS: dict[str, Effect] = {e.name: e for e in (
     # rate-dependence: velocity damping first (m and g searched, one weight); the frequency
     # polynomials of 003 (three gains searched, three weights) must fit training better and beat it
     # on held-back blocks spread over the training rows, which hold its rates (decision 0034): on
-    # training fit alone they won by their freedom (randomized seed 132, a velocity damping: 0.649
-    # against 0.662 um on training, 2.94 against 2.30 um on validation), and held back at the end of
-    # training they lost where only the end's rates were judged (seed 112, a frequency gain); the
-    # polynomials of order 1 before those of order 3: forms that fit training alike go to the fewest
-    # parameters (seed 4763, a gain linear in f: the cubic validated 3x worse than the base, order 1
-    # 69 % better; decision 0063)
+    # training fit alone they won by their freedom (on a velocity damping: 0.649 against 0.662 um
+    # on training, 2.94 against 2.30 um on validation), and held back at the end of training they
+    # lost where only the end's rates were judged (as on a frequency gain); the polynomials of
+    # order 1 before those of order 3: forms that fit training alike go to the fewest parameters
+    # (on a gain linear in f: the cubic validated 3x worse than the base, order 1 69 % better;
+    # decision 0063)
     Effect("rate-dependence", "loop width and gain change with the input rate", "rate_dependence",
            "rate-dependence", forms=("rate-dependence(form=damping)", "rate-dependence(form=frequency,order=1)",
                                     "rate-dependence(form=frequency)"),

@@ -105,8 +105,8 @@ def finer_base_check(paths: Any, base: FitResult, other: Candidate, cands: Seque
     An operator base places its thresholds evenly, so a rig whose few operators sit between them
     leaves a loop the base cannot bend to, and any base with a searched shape (PMPI's etas move
     where its operators turn) fits that better. That is the current family at too coarse a
-    resolution, not another family (randomized seed 7538: four play operators and an even v^2
-    under ``pi``; ``pi+asymmetry(order=2)`` validated at 0.726 um, ``pmpi`` at 0.360, 2.02x lower,
+    resolution, not another family (for example four play operators and an even v^2
+    under ``pi``: ``pi+asymmetry(order=2)`` validated at 0.726 um, ``pmpi`` at 0.360, 2.02x lower,
     and the base was reported wrong; ``pi(n=30)+asymmetry(order=2)`` validates at 0.389). The
     spec refitted is the one of the candidate that validates best on the current base (the base
     itself if none does better), on :func:`hilbench.diagnosis.resolution.finer_spec`'s base;

@@ -3,7 +3,7 @@
 A refit with one more effect runs a local search over every shape parameter, the base's included,
 from the fitted base. When the base's fit had stopped at a poor local optimum, that search can
 move the base's shape to a better one, and the effect gets the credit for it: on a clean case
-(randomized benchmark seed 115, a PMPI base) saturation and dynamics each lowered the validation
+with a PMPI base, for example, saturation and dynamics each lowered the validation
 rmse 51 %, and the PMPI base alone, started from either refit's shape, lowered it exactly as much
 (training 0.995 -> 0.860, validation 1.78 -> 0.866), with the dynamics parked above Nyquist.
 
@@ -37,7 +37,7 @@ def polished_base(paths: Dataset, base: FitResult, cands: list[Candidate], kw: d
     training rows better than ``base`` by more than POLISH_MIN_TRAIN_GAIN; else None. The refits
     run in up to ``jobs`` processes (:mod:`hilbench.diagnosis.workers`)."""
     # a candidate the held-back training rows may still make significant (decision 0052) could
-    # owe its gain to the base's poor optimum just as well (randomized seed 115, clean: saturation
+    # owe its gain to the base's poor optimum just as well (on a clean PMPI case a saturation
     # validated 50 % lower at block p 0.014, and its held-back rows confirmed the base's better optimum)
     starts = [c.fitted.model for c in cands if (c.significant or needs_replication(c)) and c.fitted is not None]
     refits = run_tasks([partial(fit, paths, base.spec, start_from=m, **kw) for m in starts], jobs, shared=paths.runs)
@@ -65,7 +65,7 @@ def shared_base_shape(paths: Dataset, base: FitResult, cands: list[Candidate], r
     A base with a free loop shape has near-equal optima, and each refit's search settles in one of
     them: the shape belongs to the base, not to the effect, so an optimum one refit found is open to
     every other. Without it the leaders are compared on different bases as much as on their
-    effects (randomized seed 8277, a sensor delay of 1.45 samples under ``pmpi``: the delay's refit
+    effects (for example a sensor delay of 1.45 samples under ``pmpi``: the delay's refit
     stopped at training 0.0119 um and validated 0.0120, the lag's at 0.0058 and 0.0065; the delay
     started from the lag's etas trains at 0.0058 and validates at 0.0065 too). Chosen on training
     rows only, so the validation comparison stays fair."""

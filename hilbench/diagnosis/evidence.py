@@ -224,7 +224,7 @@ EVIDENCE_CHECKS: dict[str, EvidenceCheck] = {
     # part of its rms, or, where other errors fill the rms, the creep refit is what removes that
     # drift (a ringing, a temperature or a load drifts along holds too, and creep's refit leaves most
     # of it; decision 0059). A drift within the noise is no drift, however small the rms beside it
-    # (randomized clean case 4949: 0.25x the rms and 1.0x the noise's standard error; decision 0061)
+    # (on a clean rig, a drift of 0.25x the rms and 1.0x the noise's standard error; decision 0061)
     "drift-on-holds": EvidenceCheck(
         "drift_on_holds",
         lambda ev: (ev["drift_over_noise"] >= T.CREEP_MIN_DRIFT_OVER_NOISE

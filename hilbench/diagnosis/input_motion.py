@@ -213,7 +213,7 @@ def drive_frequencies(f: np.ndarray, amplitude: np.ndarray, span: float) -> list
     spread count them: the 10th and 90th percentiles over time of the half-cycle frequencies,
     widened to the LOOP_HALF_CYCLES-th slowest and fastest half cycle spanning LOOP_MIN_SPAN of the
     span (a few loops at a second rate are a rate, decision 0040). One short reversal is no drive
-    rate: a slewed jump from a hold to where a triangle starts (randomized seed 9107: 0.087 A in 4
+    rate: a slewed jump from a hold to where a triangle starts (for example 0.087 A in 4
     samples at 5 kHz) is a half cycle of 625 Hz, and a 3.6 Hz drive read as reaching 625 Hz asked of
     its training content 3.1 kHz to be predicted (decision 0078). Empty when there are no reversals."""
     if not f.size:

@@ -73,7 +73,7 @@ def should_try(cands: list[Candidate]) -> list[Candidate]:
     members = sorted((c for c in singles if _gain(c) > T.MIN_GAIN), key=lambda c: -_gain(c))
     chosen = members[: T.PAIR_MAX_MEMBERS]
     # the single that carries over best is the likeliest real half of a pair: singles that only
-    # learned training can fill the places by training gain alone and leave it out (seed 2202: an
+    # learned training can fill the places by training gain alone and leave it out (for example an
     # even v^6 and a saturation trained 66 %, a creep bank 31 %, and the temperature ramp that
     # validated 27 % was fourth; jointly with the v^6 it validates 83 %) (decision 0048)
     carries = max(members, key=lambda c: c.expected_gain, default=None)
@@ -89,7 +89,7 @@ def delay_partners(cands: list[Candidate], base: FitResult, noise: float) -> lis
     data" as the base check's). A dead time in the drive moves where every other effect acts: an effect acting at fast
     transitions (velocity damping at slewed steps) cannot fit where its output lands samples early,
     and a delay alone cannot make the transitions' error, so neither single learns anything, even
-    training (randomized seed 2109, an amplifier delay of 3 samples and a damping: every single
+    training (for example an amplifier delay of 3 samples and a damping: every single
     within 2 % of the base, 24 um on validation with a 0.07 um noise floor; jointly 0.60 um;
     decision 0051). Empty otherwise."""
     singles = [c for c in cands if _single(c)]
@@ -157,7 +157,7 @@ def pairs_to_try(cands: list[Candidate], base: FitResult, noise: float) -> list[
     :func:`delay_partners` calls for it, whether or not the usual rule pairs others (a single that
     learned training and failed, a frequency gain's polynomial bending to the lagged loops, calls
     for the usual pairs, yet as long as the drive's dead time is missing no partner of it carries
-    over; randomized seed 4084, a frequency gain and a sensor delay: every single within 5 % of the
+    over; for example a frequency gain and a sensor delay: every single within 5 % of the
     base at 56 noise floors, the two jointly 80 % lower; decision 0056). Members keep the order of
     ``cands`` (the registry's); no pair twice."""
     members = should_try(cands)

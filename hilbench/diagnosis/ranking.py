@@ -57,8 +57,8 @@ def _members_before_their_pairs(cands: list[Candidate]) -> None:
     significant alone, in place. Pairs exist for effects that carry over only together (issue 11
     item 7); a member that carries over alone is the finding, and its partner is judged in the next
     round against the model that holds it (``--auto``), on its own evidence. Ranked first, the pair
-    credits the partner with what it adds on top of a real effect: on seed 89 (asymmetry and a
-    sensor delay hidden) asymmetry alone lowered validation 42 % and a saturation partner, not
+    credits the partner with what it adds on top of a real effect: with asymmetry and a sensor
+    delay hidden, for example, asymmetry alone lowered validation 42 % and a saturation partner, not
     significant alone, took it to 53 % and the pair ranked first."""
     for pair in [c for c in cands if "pair" in c.evidence]:
         alone = [c for c in cands if c.significant and c.effect in pair.evidence["pair"]]
@@ -72,8 +72,8 @@ def _pairs_behind_equal_singles(cands: list[Candidate]) -> None:
     """Move a pair behind every significant single effect whose validation rmse it does not lower by
     more than MIN_GAIN, in place: the margin a pair must have over its own members
     (:mod:`hilbench.diagnosis.pairs`) holds against any single that explains the data, since two
-    effects that validate no better than one are not the better explanation. Randomized seed 1281
-    (creep and asymmetry hidden): a saturation + rate-dependence pair, neither significant alone,
+    effects that validate no better than one are not the better explanation. With creep and
+    asymmetry hidden, for example, a saturation + rate-dependence pair, neither significant alone,
     lowered validation 26.4 % and ranked above creep, significant alone at 26.3 %."""
     def validation_rmse(c: Candidate) -> float:
         if "validation_rmse" in c.evidence:
@@ -124,11 +124,11 @@ def _delay_or_lag_by_the_fast_error(cands: list[Candidate]) -> None:
 
     The two mimic each other on everything slow, so their validation rmse mostly measures what
     else each refit takes up: a lag absorbs part of a base's mismatch as well (an M-play rig under
-    ``pmpi``, randomized seed 4719: the lag validated 0.344 um against the true delay's 0.435).
+    ``pmpi``: the lag validated 0.344 um against the true delay's 0.435).
     Where they differ is at the input's fastest changes: a dead time shifts a corner, a lag rounds
     it. :func:`validation_differences` isolates that part, and the other effect goes first when its
     differences pass the same bar that makes an effect significant: an rms more than MIN_GAIN
-    lower and the block tests at p < P_MAX (4719: 0.263 against 0.315 um, with the noise's
+    lower and the block tests at p < P_MAX (in that case 0.263 against 0.315 um, with the noise's
     s sqrt(2) at 0.265, p 1e-4). The rms bar is the guard the sign-flip tests lack alone: a
     consistent difference of 0.004 % there (a slow misfit's own derivative) is no evidence (decision 0065)."""
     top = cands[0] if cands else None

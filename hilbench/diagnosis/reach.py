@@ -5,8 +5,8 @@ the play operators have no identified thresholds and no memoryless term was fitt
 excursion the hysteresis memory holds a turning point training never produced, and it stays until
 the input comes back to the range's opposite end, which wipes it out of every operator (the
 wiping-out property of Preisach and play hysteresis). Every model carries that bias over those rows,
-the truth's form included (decision 0055: 0.36-0.48 um over the last half of seed 3901's test run,
-where a logarithmic creep had lowered the error 7x before the excursion).
+the truth's form included (decision 0055: on a logarithmic creep under a play base, 0.36-0.48 um
+over the last half of the test run, where the creep had lowered the error 7x before the excursion).
 
 :func:`within_reach` marks the rows outside that envelope: from the first sample beyond training's
 range widened by REACH_ENVELOPE of its span, until the input comes back within REACH_ENVELOPE of

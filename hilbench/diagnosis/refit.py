@@ -162,8 +162,8 @@ def within_inner_rates(user: list[Any], held_back: list[np.ndarray]) -> list[np.
     Interleaved blocks of a program of a few segments can hold all of one drive rate: the inner fit
     never sees it and its frequency polynomials are held at the largest rate they saw (they have no
     physical extrapolation), so on those rows it is judged on an extrapolation the form does not
-    claim, against a damping that extrapolates as its power law (randomized seed 2664, a frequency
-    gain: the polynomials lowered the user's validation rmse 10x and lost the inner check on a block
+    claim, against a damping that extrapolates as its power law (on a frequency gain, for example,
+    the polynomials lowered the user's validation rmse 10x and lost the inner check on a block
     at up to 21 Hz, the inner fit's rows reaching 5.4 Hz; decision 0050). The user's validation
     judges rates beyond training."""
     from hilbench.models.kernels import turning_point_frequency
@@ -194,8 +194,8 @@ def validation_beyond_training_reach(paths: Any, kw: dict[str, Any]) -> bool:
 
     Inside training's reach the inner-range check measures the base more than the polynomial: the
     rows above INNER_SPLIT of the reach are where the base's top operators act, and held back from
-    the inner fit, nothing fits them (randomized seed 6743, an even v^4 on a one-sided drive
-    validated within training's range: v^2 and v^2..v^4 left 0.1115 and 0.1110 um there, so v^2
+    the inner fit, nothing fits them (an even v^4 on a one-sided drive validated within
+    training's range: v^2 and v^2..v^4 left 0.1115 and 0.1110 um there, so v^2
     was kept; on validation it gave 0.044 um, v^2..v^4 0.029 and a saturation 0.034). Only the
     inputs of validation are read, the drive the user chose, never its response."""
     dataset = as_dataset(paths)
@@ -214,8 +214,8 @@ def choose_by_inner_range(paths: Any, specs: list[str], kw: dict[str, Any], star
     by RICHER_FORM_MARGIN: the inner fits train on the user's training rows whose |input| stays within
     INNER_SPLIT of training's largest and are scored on the rest. A
     memoryless polynomial of the input fails where it extrapolates in input: higher powers fitted
-    over one range swing beyond it, and a test run often drives further than training (randomized
-    seed 2129, an even v^2 on a one-sided drive: v^2..v^4 validated 0.175 um where v^2 alone gave
+    over one range swing beyond it, and a test run often drives further than training (an even
+    v^2 on a one-sided drive: v^2..v^4 validated 0.175 um where v^2 alone gave
     0.040, the test run reaching 1.23x training's drive; decision 0046). The user's validation rows
     stay untouched."""
     if len(specs) == 1:
@@ -248,7 +248,7 @@ def choose_by_inner_split(paths: Any, specs: list[str], kw: dict[str, Any], star
     (``inner-split-both``, the loop families of hysteresis). A loop shape is what every stretch of
     a run shows, so a family that describes it better fits both the rows it saw and those it did
     not; one that fits its own rows worse and the held-back rows better stopped in a poorer
-    optimum whose extrapolation happened to suit the run's end (randomized seed 223: ``pmpi``
+    optimum whose extrapolation happened to suit the run's end (on play loops, ``pmpi``
     0.61 against ``pi``'s 0.55 um on its rows, 0.40 against 0.62 held back, and 2.9 against
     0.96 um on the test run)."""
     if len(specs) == 1:
@@ -284,7 +284,7 @@ def inner_rows_loop(result: FitResult, user: list[Any]) -> bool:
     """Whether the inner fit's rows (``result``'s training rows) turn the input INNER_MIN_REVERSALS
     times in some run, counted against the span of the user's training rows: a loop family shows
     its shape on loops. An inner fit that saw a power-on step and a hold predicts the held-back
-    rows by whatever each family makes of a step, not by the loop's shape (randomized seed 4042:
+    rows by whatever each family makes of a step, not by the loop's shape (for example,
     play loops from a linear start, training a step, a hold and the first cycle of a sine; ``duhem-d``
     won the held-back cycle and validated at 2.41 um against the linear base's 2.16, where ``pi``
     validates at 0.093 um; decision 0057)."""
@@ -325,8 +325,9 @@ def fit_effect(paths: Any, base: FitResult, effect: str, kw: dict[str, Any], pla
     best = min(range(len(fits)), key=lambda k: train[k])
     if choice in ("train", "inner-blocks"):
         # equal: within FORM_TIE of what the best form explains, not of the whole training error,
-        # which other effects may dominate (seed 1504: a resonance left 1.54 um in training, where the
-        # saturation forms differed by 0.005 um and the one that fitted better validated 30 % lower)
+        # which other effects may dominate (a saturation beside a resonance that left 1.54 um in
+        # training: the saturation forms differed by 0.005 um and the one that fitted better
+        # validated 30 % lower)
         band = T.FORM_TIE * max(base.metrics["train"]["rmse"] - train[best], 0.0)
         tied = [k for k in range(len(fits)) if train[k] - train[best] <= band]
         best = min(tied, key=lambda k: (free_parameters(fits[k].model), k))

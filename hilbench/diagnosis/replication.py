@@ -4,10 +4,10 @@ too short to confirm alone (decision 0052).
 The block tests (:mod:`hilbench.diagnosis.significance`) refer the validation gain to random sign
 flips of contiguous blocks, so their p-value cannot fall below 2**-k when the gain sits in k
 independent stretches: a velocity damping at the 5 steps of a test run reaches p = 0.03 at best
-(randomized seed 3076: validation 51 % lower, training 71 %), a creep or a temperature drift on a
-record a few correlation lengths long fills 20 blocks that are barely independent (seeds 2801,
-2772: p 0.07 and 0.03, validation 14 % and 12 % lower). The validation rows are then too short to
-tell, not the effect too weak.
+(2**-5, however large the gain: validation 51 % lower, training 71 %, in one such case), a creep
+or a temperature drift on a record a few correlation lengths long fills 20 blocks that are barely
+independent (p 0.07 and 0.03 for two such drifts, validation 14 % and 12 % lower). The validation
+rows are then too short to tell, not the effect too weak.
 
 The training rows hold more of the same evidence, but the refit saw them. So a candidate that failed
 the block test only, at a validation p below ``sqrt(P_MAX)``, is refitted together with the base on
@@ -17,7 +17,7 @@ blocks of :func:`hilbench.identify.sweep.interleaved` (BLOCKS of them; never the
 model's memory starts), so every training row but the first block's is held back once: evidence
 that sits in a few stretches of training (the steps of a staircase, where a sub-sample sensor delay
 shows) is in the test wherever the stretches fall. One fold of two blocks held back missed them
-(randomized seed 4119: 3 % lower on its held-back rows, 60 % on all folds' together). Neither inner
+(a 0.8-sample sensor delay: 3 % lower on its held-back rows, 60 % on all folds' together). Neither inner
 fit of a fold saw its rows, and they are not validation rows: under no effect
 the two p-values are independent and uniform, so the chance that both fall below ``sqrt(P_MAX)`` is
 P_MAX. The joint p-value ``max(p_validation, p_held_back)**2`` replaces the block test's p, and the
@@ -158,8 +158,8 @@ def settle(c: Candidate, held: BlockTests, rms_base: float, rms_new: float, rows
     c.evidence["checks"][BLOCK_CHECK] = joint < T.P_MAX
     # the held-back rows replicate the whole of what validation asks: not chance, and large
     # enough to matter (MIN_GAIN: below it a refit buys as much on unseen rows by chance, or a
-    # base family slightly off the plant's is bent a little closer; clean seed 3571: a knee on
-    # a one-sided PI, validation 17 % lower at p 0.097, held-back rows 8 % lower at p 1e-4)
+    # base family slightly off the plant's is bent a little closer; on a clean rig, a knee on a
+    # one-sided PI: validation 17 % lower at p 0.097, held-back rows 8 % lower at p 1e-4)
     c.evidence["checks"][HELD_BACK_CHECK] = relative_gain(rms_base, rms_new) > T.MIN_GAIN
     c.significant = all(c.evidence["checks"].values())
     if c.significant:

@@ -30,7 +30,7 @@ A delay and a lag on a ``pmpi`` base are checked so whatever their margins (deci
 M-play operator's eta is a delay coefficient of its own (004 eq. 6): at the reversals it bends the
 loop as a dead time or a lag would, and with ten thresholds placed evenly the searched etas also
 stand in for the plant's operators between them. What that leaves at the reversals, a lag takes up
-with the delay's share: on randomized seed 5744 (a 1 ms amplifier delay, an M-play rig) the lag
+with the delay's share: on a 1 ms amplifier delay on an M-play rig, for example, the lag
 validated at 0.023 um against the delay's 0.060 on ten operators, and at 0.046 against 0.015 on
 twenty. The training condition does not apply (the lag trained at the noise there), nor the tie:
 the lag's lead is the base's mismatch, however large. ``pmpi`` is refitted at
@@ -90,7 +90,7 @@ def _delay_or_lag_rival(base_spec: str, cands: list[Candidate]) -> Candidate | N
     if "ranked_by_fast_error" in leader.evidence:
         # the error at the input's fastest changes already passed the bar of an effect for the leader
         # (decision 0066): that is where a delay and a lag differ, and a finer base's slow part is not
-        # evidence against it (randomized seed 4719: on pmpi(n=20) the lag validates 0.30 um against
+        # evidence against it (a delay behind a lag: on pmpi(n=20) the lag validates 0.30 um against
         # the delay's 0.44, while the delay's fast error stands at the noise's)
         return None
     partner = next(iter(DELAY_AND_LAG - {leader.effect}))
@@ -122,8 +122,8 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
             return
     v_rival = rms(validation_errors(rival.fitted))
     # each effect in the form the data choose on the finer base: a form chosen at 10 operators may
-    # owe the choice to them as well (seed 4223: v^2 alone chosen at 10; at 30 v^2..v^4, which
-    # validates 0.112 against v^2's 0.175 um there)
+    # owe the choice to them as well (an even term behind a saturation: v^2 alone chosen at 10; at
+    # 30 v^2..v^4, which validates 0.112 against v^2's 0.175 um there)
     try:
         with progress.task(f"diagnose {base.spec}: {leader.effect} and {rival.effect} on {spec}", total=3) as advance:
             finer = fit(paths, spec, **kw)
@@ -143,8 +143,8 @@ def check_resolution(paths: Dataset, base: FitResult, cands: list[Candidate], no
               "finer_validation_rmse": {leader.effect: f_leader, rival.effect: f_rival}}
     # the rival must validate below the leader's best showing, on either base: where the finer base
     # only made the leader worse, its extra operators took up something besides the loop's shape and
-    # the order is no question of resolution (randomized seed 7178, a saturation with a sensor delay
-    # unmodelled: at 30 operators the saturation validated 0.339 against its 0.260 um at 10, and v^2..v^4
+    # the order is no question of resolution (a saturation with a sensor delay unmodelled, for
+    # example: at 30 operators the saturation validated 0.339 against its 0.260 um at 10, and v^2..v^4
     # 0.286 ranked first; decision 0070)
     if relative_gain(min(f_leader, v_leader), f_rival) > T.MIN_GAIN:
         cands.remove(rival)
@@ -175,8 +175,8 @@ def _tie_on_the_finer_base(leader: Candidate, rival: Candidate, best_leader: flo
     the rival within PARSIMONY_MARGIN of the leader's best showing on either base (``best_leader``,
     as decision 0070 compares), that lead was the base's resolution, and the
     two explain the data alike: then what decides a tie on any base decides here, the residual's
-    pattern first, then the fewer free parameters (decision 0076; randomized seed 8500, an even
-    v^2 on a one-sided drive under ``pi1``: a saturation with 25 parameters validated 0.0118 um
+    pattern first, then the fewer free parameters (decision 0076; an even v^2 on a one-sided
+    drive under ``pi1``, for example: a saturation with 25 parameters validated 0.0118 um
     against v^2's 0.0125 with 12, and on 30 operators 0.00694 against 0.00702, at the noise's
     0.0063)."""
     if f_rival > best_leader * (1.0 + T.PARSIMONY_MARGIN):

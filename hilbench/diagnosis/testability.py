@@ -156,8 +156,8 @@ def _rings(ex_train: dict[str, Any], top_hz: float) -> bool:
     the step's edges, which ring the dynamics whatever the step's slew. They ring them up to the rates to be
     predicted when that content reaches HARMONIC_REACH x the highest drive frequency of all rows.
     Counted in samples, a step slewed over several samples at a high sample rate is no step at all
-    (randomized seed 7414: 1.2 V over 7 samples at 5 kHz, content to 476 Hz, and a 4.8-9.8 Hz
-    test run whose resonance validated 5x lower with dynamics; decision 0072)."""
+    (a resonance near the drive: a 1.2 V step over 7 samples at 5 kHz, content to 476 Hz, and a
+    4.8-9.8 Hz test run whose resonance validated 5x lower with dynamics; decision 0072)."""
     need = _ring_need(ex_train, top_hz)
     return need > 0 and ex_train["excited_hz"] >= need
 

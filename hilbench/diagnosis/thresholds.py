@@ -106,7 +106,7 @@ SIGNATURE_MARGIN = 0.2
 #: Two refits are never tied when the leader's validation mean square is below the other's by this
 #: factor, whatever the block tests say: a gain concentrated in a few blocks (a knee at the largest
 #: drive) leaves them little power (hilbench/diagnosis/significance.py), and half the error is not
-#: a coin toss for the residual's pattern to settle. Randomized seed 2220 (an output knee): the
+#: a coin toss for the residual's pattern to settle. On an output knee, for example, the
 #: saturation refit validated at 0.55 um against an even term's 1.04 (p 0.013) and the even
 #: pattern put the even term first; the patterns' reorders of 600 development cases were between
 #: refits within 4 % in rmse (decision 0047).
@@ -120,7 +120,7 @@ PARSIMONY_MARGIN = 0.05
 #: ... and only when the candidate with fewer parameters fits the training rows nearly as well: a
 #: leader whose training rmse is below the simpler one's by more than this factor did not match it
 #: by flexibility (a parameter or two more buy percents, not multiples; a resonance near the drive
-#: trains at 0.22 um where a delay stops at 1.46, seed 181), as the wrong-base check asks multiples.
+#: trains at 0.22 um where a delay stops at 1.46), as the wrong-base check asks multiples.
 PARSIMONY_TRAINING_RATIO = 2.0
 
 #: An auxiliary channel is tried when its smoothed range exceeds this many noise stds: pure noise
@@ -157,7 +157,7 @@ PAIR_MAX_MEMBERS = 3
 #: best form's by less than this fraction of what the best form lowers it by (from the base's) fit
 #: the rows equally: the one with the fewest free parameters is chosen (decision 0043). Copies of
 #: every hysteresis column with their own weights trained 0.005 % of the gain better than the
-#: one-weight Wiener knee and validated 6x worse (randomized seed 969).
+#: one-weight Wiener knee and validated 6x worse: free weights fit the noise, not the knee.
 FORM_TIE = 0.01
 
 #: The order of the two leading effects is checked on a finer base (diagnosis/resolution.py, decision
@@ -165,7 +165,7 @@ FORM_TIE = 0.01
 #: still ranked behind a saturation, at 3x it reached the noise and led (decision 0054's table).
 RESOLUTION_FACTOR = 3
 #: ... and for ``pmpi``, whose operators each carry a searched eta, this many times: at 30 operators
-#: the search over 29 etas stopped short of the 20-operator fit (randomized seeds 4719 and 5629: the
-#: lag validated 0.85 against 0.30 um, the delay 0.19 against 0.14), so the finer base would be a
-#: worse fit, not a finer one (decision 0068).
+#: the search over 29 etas stopped short of the 20-operator fit (two cases of a delay and a lag
+#: under ``pmpi``: the lag validated 0.85 against 0.30 um, the delay 0.19 against 0.14), so the
+#: finer base would be a worse fit, not a finer one (decision 0068).
 PMPI_RESOLUTION_FACTOR = 2

@@ -83,11 +83,11 @@ def model_error_gain(old: float, new: float, noise: float = 0.0, uncertainty: fl
     above the noise, old^2 - noise^2, as a relative rms gain 1 - sqrt(1 - that fraction).
 
     No model removes sensor noise, so rows whose error is mostly noise show a small relative rmse
-    gain whatever the model learned there (randomized seed 1518: a load effect removed 40 % of the
+    gain whatever the model learned there (a load effect, for example, removed 40 % of the
     training's mean square above the noise, 6.6 % of its rmse). Only where the excess is known: it
     must exceed ``uncertainty`` x noise^2 (:meth:`hilbench.diagnosis.noise.NoiseFloor.variance_uncertainty`).
     Rows whose excess is within the floor's own uncertainty cannot tell what a refit learned from
-    noise and show the plain relative gain (seed 1740, a clean rig 1.07x the floor in training, u =
+    noise and show the plain relative gain (a clean rig 1.07x the floor in training, u =
     0.28: a saturation refit removed 27 % of the uncertainty band there and 34 % of validation's
     rmse, a wrong base's shape, not an effect). With no noise this is :func:`relative_gain`."""
     if not old > 0:
@@ -114,8 +114,8 @@ def error_above_noise(old: float, noise: float, uncertainty: float) -> bool:
     exceed the floor's by more than the floor's own variance uncertainty (:func:`noise_band`).
 
     A fixed NOISE_FACTOR x the floor refused errors of 1.2-1.4x a well-known floor, where a refit
-    took the error down to the floor with p = 1e-4 (randomized seeds 2029 and 2033: a resonance and
-    a lag, 0.5 and 0.9 of the noise variance above a floor known to 0.1-0.3 of it). That excess is model error whenever the floor is
+    took the error down to the floor with p = 1e-4 (a resonance and a lag, 0.5 and 0.9 of the noise
+    variance above a floor known to 0.1-0.3 of it). That excess is model error whenever the floor is
     known better than that; when it is not, the excess may be the floor's error and the band stays."""
     return float(old) > noise_band(noise, uncertainty)
 
@@ -149,20 +149,20 @@ def gains_agree(first: Sequence[float], second: Sequence[float], carried: float 
     Relative gains on validation are diluted by error the effect has nothing to do with: a second
     missing effect that acts on the validation rows (a temperature ramp in the test run) leaves the
     error it causes there, so a resonance explaining 95 % of training's rmse lowers validation's by
-    30 % while removing about half as much mean square there as in training (randomized benchmark
-    seed 181: 17.0 against 9.1 um^2). Another error adds its mean square and does not change what
-    the effect removes, so agreement in explained power is not diluted, while an effect that learned
-    the training rows only (more parameters) removes little mean square on validation.
+    30 % while removing about half as much mean square there as in training (17.0 against 9.1 um^2).
+    Another error adds its mean square and does not change what the effect removes, so agreement in
+    explained power is not diluted, while an effect that learned the training rows only (more
+    parameters) removes little mean square on validation.
 
     Both fall short when the validation rows hold less of the effect than training's: a resonance rung
-    by the training's steps, on validation rows the drive barely excites (seed 149: 80 % of training's
-    rmse, 17 % of validation's). What still tells a learned effect from a fitted one is where the
-    refit moves the simulation on rows it never saw: towards the data (the change is error it removes,
+    by the training's steps, on validation rows the drive barely excites (in one such case 80 % of
+    training's rmse, 17 % of validation's). What still tells a learned effect from a fitted one is
+    where the refit moves the simulation on rows it never saw: towards the data (the change is error it removes,
     about 1) or anywhere (a change unrelated to the error adds its own power, about -1). Decision 0033.
 
     The converse is not admitted: a small training gain with a large validation gain is what a
     refit that changed the base's extrapolation produces, and explained power is no guard there,
-    since a base's errors beyond its training rows are usually larger than on them (seed 146: a
+    since a base's errors beyond its training rows are usually larger than on them (for example a
     knee explaining 11 % of training and 77 % of validation, 1.1 against 2.3 um^2, on a rig whose
     hidden effects were creep and load). Decision 0030.
 

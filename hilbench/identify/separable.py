@@ -560,16 +560,16 @@ def _fit_model(
             # scan's best point, one from the best point of the cold fit's own scan (every parameter
             # spread from its cold start). A base with a free loop shape (PMPI's etas, Duhem's,
             # Bouc-Wen's) was fitted without the new effect and may have bent to mimic it (PMPI
-            # etas bent to a missing temperature gain or sensor delay: randomized benchmark seeds
-            # 30, 59, 140), so the warm basin alone can miss the optimum the effect opens. An
-            # effect's own shape (a creep time, a delay) describes its signature only and stays
-            # warm with one search (decisions 0017, 0027).
+            # etas bend to a missing temperature gain or sensor delay: a free shape absorbs what it
+            # can of an effect it lacks), so the warm basin alone can miss the optimum the effect
+            # opens. An effect's own shape (a creep time, a delay) describes its signature only and
+            # stays warm with one search (decisions 0017, 0027).
             cold = np.clip(problem.to_x(np.array([defaults.get(id(p), p.value) for p in params])), lo, hi)
             everything = np.ones(len(params), dtype=bool)
             # as many cold searches as a cold fit runs (its scan's best points): the second start of
-            # a cold PMPI fit reached optima the first missed (seed 59: training 0.0074 vs 0.0085 um,
-            # validation 0.0103 vs 0.039 um; seed 53 likewise), so a refit with fewer would search less
-            # than fitting the spec from scratch (decision 0029)
+            # a cold PMPI fit reached optima the first missed (a cycling temperature: training 0.0074
+            # vs 0.0085 um, validation 0.0103 vs 0.039 um; a resonance above the drive likewise), so a
+            # refit with fewer would search less than fitting the spec from scratch (decision 0029)
             coldest = _scored(problem, _start_points(model, runs, train_masks, problem, cold, everything,
                                                      global_starts, seed))[: max(1, local_starts)]
             local = [scored[0], *coldest]
@@ -593,8 +593,9 @@ def _fit_model(
         if len(found) >= 2 and warm and min(f[0] for f in found[1:]) > (1.0 - SAME_OPTIMUM) ** 2 * found[0][0]:
             # the cold search reached the warm one's training error, up to the search's tolerance:
             # the same optimum found again, or another that the training rows cannot tell apart
-            # from it (PMPI's etas trade against a delay: seed 20 fits 0.05 % better cold and
-            # validates 2.3x worse), so the start the simpler model chose decides (decision 0027)
+            # from it (PMPI's etas trade against a delay: on a sensor delay the cold search fits
+            # 0.05 % better and validates 2.3x worse), so the start the simpler model chose decides
+            # (decision 0027)
             best_sse, best_x = found[0]
         for p, value in zip(params, problem.to_theta(best_x)):
             p.value = float(value)

@@ -75,8 +75,8 @@ def unsettled_rest(y: np.ndarray, rest: int, channels: Sequence[np.ndarray] = ()
     ``channels``: the run's recorded auxiliary channels (temperature, load). The input holds still,
     but these are inputs too: what they explain of the output's movement during the rest (a least-
     squares fit on them over the rest, :func:`_unexplained`) is a response to a recorded cause, the
-    data a model with that channel is identified on, not an unknown history (randomized seed 7736:
-    a cycling temperature moved the output 0.5 um during a 0.38 s rest; trimmed, the temperature
+    data a model with that channel is identified on, not an unknown history (for example, a
+    cycling temperature moved the output 0.5 um during a 0.38 s rest; trimmed, the temperature
     model that fits the whole run at the noise validated 84x worse; decision 0073)."""
     if rest < 32:
         return False

@@ -191,7 +191,7 @@ class Saturation(Component):
         the model stays linear in its weights, and with the reference equal to the fitted hysteresis
         output and the weight 1 it is the Wiener model itself (the fit alternates the two,
         :func:`hilbench.identify.separable._refine_references`). Copies of every hysteresis column
-        with free weights fitted training to the noise and validated 4x worse (randomized seed 969)."""
+        with free weights fitted training to the noise and validated 4x worse."""
         h = self.reference_output(previous)
         if h is None:
             return None  # no reference yet: the model without the effect (the fit solves it so)
@@ -442,8 +442,8 @@ class RateDependence(Component):
             # error it is there to remove at higher rates (issue 11, 3b: trained at 5 + 10 Hz,
             # validated at 50 Hz, 0.53 um rms held vs 0.083 um extrapolated). The guard is physical
             # instead: the span, crossed within one sample. Rates below it are what drove the
-            # actuator: a slewed step (a test run of steps the training never saw, randomized seed
-            # 132) is a burst of fast rates the damping acts on: with a load, held at 5 % of the
+            # actuator: a slewed step (as in a test run of steps the training never saw) is a
+            # burst of fast rates the damping acts on: with a load, held at 5 % of the
             # span per sample (decision 0016) it lowered the validation rmse 13 %, 95 % as
             # recorded. A one-sample command step that the amplifier slews over several samples
             # puts the damping into one sample instead of several, with the same integral at m = 1
@@ -695,8 +695,8 @@ class Dynamics(Component):
         # plant's either way; they differ in the zeros. First-order hold (linear between samples)
         # builds no delay in (the delay effect models delay). A plant driven through a DAC sees each
         # sample held, which zero-order hold describes exactly: about half a sample later at the
-        # drive, which a first-order-hold model can only mimic by moving the resonance (randomized
-        # seed 2948: 123.6 Hz found for 125 Hz, or a half-sample delay beside it; decision 0053).
+        # drive, which a first-order-hold model can only mimic by moving the resonance (a 125 Hz
+        # resonance behind a DAC: 123.6 Hz found, or a half-sample delay beside it; decision 0053).
         return discretize_dynamics(table, fs, method=str(self.options.get("hold", "foh")))
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> None:
@@ -724,7 +724,7 @@ class Delay(Component):
         spaced). Alone, a delay's error is smooth in it: a phase lag of the drive. Searched with an
         effect that acts at fast transitions (velocity damping at slewed steps of a few samples),
         that effect fits only where the delay puts its output within a sample of the plant's, and
-        the error is flat elsewhere: a coarse scan of the range misses it (randomized seed 2109: an
+        the error is flat elsewhere: a coarse scan of the range misses it (for example, an
         amplifier delay of 3 samples and a damping, 5.12 um in training searched over 0-50 samples,
         0.365 um at 3; decision 0051)."""
         p = next((q for q in self.params if q.name == "seconds"), None)
