@@ -109,13 +109,14 @@ def bench_block(samples: int, chunk: int) -> dict[str, Any]:
     probe = build(10)  # compile / load on a throwaway loop
     pc = probe["comp"]
     closed_loop_block(pc.CI, pc.CP, pc.CX, pc.I, pc.P, pc.X, pc.oiir_arrays(), probe["F"], probe["L"], probe["B"],
-                      probe["loop"].lims, probe["loop"].last, probe["ref"], probe["A"], *(np.empty(10) for _ in range(3)))
+                      probe["loop"].lims, probe["loop"].last, probe["ref"], probe["A"], *(np.empty(10) for _ in range(3)),
+                      probe["ref"])  # the targets: the reference itself (the benchmark's model has no dynamics)
     times, sizes = [], []
     for start in range(0, samples, chunk):
         s = slice(start, min(samples, start + chunk))
         B = np.ascontiguousarray(env["B"][:, s])
         t0 = time.perf_counter()
-        closed_loop_block(*args, B, loop.lims, loop.last, ref[s], A[s], out[0][s], out[1][s], out[2][s])
+        closed_loop_block(*args, B, loop.lims, loop.last, ref[s], A[s], out[0][s], out[1][s], out[2][s], ref[s])
         times.append(time.perf_counter() - t0)
         sizes.append(s.stop - s.start)
     err = ref - out[2]

@@ -122,7 +122,7 @@ def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None
 def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
     """The fitted model's own error on the tracking run: its free run on the commands the rig
     applied (after the history ``track`` drove before the run: rest -> top of the fitted range ->
-    first command, at the slew limit) against the measured output, normalised like the tracking
+    first command, at the slew limit, held there while the dynamics settle) against the measured output, normalised like the tracking
     metric (by the reference's span). Near the tracking error, the model does not carry over to
     this reference; well below it, the inverse or the loop loses the rest."""
     import numpy as np
@@ -136,7 +136,9 @@ def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
     step = act.max_rate / fs
     top = max(min(act.max, float(model.norm.get("u_scale", act.max))), act.min)
     rest = act.rest
-    pre = np.concatenate([[rest], ramp(rest, top, step), ramp(top, res.approach_from, step)])
+    held = int(res.compensator.get("held_before_run_samples", 0))  # settling at the first command
+    pre = np.concatenate([[rest], ramp(rest, top, step), ramp(top, res.approach_from, step),
+                          np.full(held, res.approach_from)])
     u = np.concatenate([pre, res.input])
     aux = {ch: np.concatenate([np.full(pre.size, v[0]), v]) for ch, v in res.aux.items()}
     y = model.simulate(RunData(u, None, aux, fs, name="track", approach_from=rest))[pre.size:]

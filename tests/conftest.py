@@ -138,6 +138,7 @@ SHARED_WORKER_MODULES = {
     "tests/online/test_tracking.py": "closed-loop",
     "tests/online/test_feedback_design.py": "closed-loop",
     "tests/online/test_operating_range.py": "closed-loop",
+    "tests/online/test_preview_tracking.py": "closed-loop",
     "tests/runners/test_emulated_track.py": "closed-loop",
     "tests/runners/test_emulated_rigs.py": "emulated-001-sweeps",
 }

@@ -49,9 +49,13 @@ Kinds (chosen from the model spec by :class:`Compensator`, ``method="auto"``):
              same auxiliary channels the model does.
 
 Dynamics and delay: the compensator inverts the static part (its copy of the model has the
-``dynamics`` and ``delay`` effects switched off). The dynamics' inverse ``A(z)/B(z)`` is added as a
-feed-forward pre-filter of the reference only when ``B`` is minimum phase (zeros inside the unit
-circle with a margin, ``b0 != 0``); otherwise, and for the delay, it is left to feedback.
+``dynamics`` and ``delay`` effects switched off). When the whole reference is known before the run
+(tracking), :meth:`Compensator.enable_preview` inverts the dynamics and the delay over it
+(:mod:`hilbench.online.preview`: stable inversion, non-causal where the zeros demand it) and the
+static part is given that target per sample. Step by step without a preview, the dynamics' inverse
+``A(z)/B(z)`` is a feed-forward pre-filter of the reference only when ``B`` is minimum phase (zeros
+inside the unit circle with a margin, ``b0 != 0``); otherwise, and for the delay, it is left to
+feedback.
 
 Feedback (optional): a PID in the output domain (um of error in, um added to the reference out,
 before the inverse), so the PID sees the compensated plant: the rig after the inverse, whose local
@@ -324,6 +328,9 @@ class Compensator:
                 self.notes.append(f"dynamics inverse A(z)/B(z) fed forward (zeros at |z| <= {radius:.3g})")
         if model.effect("delay") is not None:
             self.notes.append("delay not compensated in feed-forward (no preview): left to feedback")
+        self.preview: dict[str, Any] | None = None
+        #: samples the rig was held at the run's first command for the dynamics to settle (tracking)
+        self.held_before_run = 0
         nf = max(ff_num.size, ff_den.size) - 1
         ci[K.CI_FF] = nf
         if nf > 0:
@@ -567,6 +574,41 @@ class Compensator:
             self.oiir.reset()
         self._aux = np.zeros(max(len(self.channels), 1))
 
+    def settling_samples(self, floor: float = 1e-3, most_s: float = 1.0) -> int:
+        """Samples for the model's dynamics to settle to ``floor`` of a step (plus its delay), at most
+        ``most_s`` seconds: how long the rig is held at a run's first command before the run."""
+        from hilbench.online.preview import settling_samples
+
+        n = settling_samples(*self.dynamics, floor=floor) if self.dynamics is not None else 0
+        delay = self.model.effect("delay")
+        if delay is not None:
+            n += int(math.ceil(float(delay.param("seconds")) * self.fs))
+        return int(min(n, most_s * self.fs))
+
+    def enable_preview(self, reference: np.ndarray) -> np.ndarray:
+        """Invert the model's dynamics and delay over the whole ``reference`` (um), known before the run
+        (:mod:`hilbench.online.preview`): returns what the static part must deliver per sample (pass it
+        to :meth:`step`/:meth:`feedforward` as ``target``) and switches the causal pre-filter off. A model
+        without dynamics or delay returns the reference as it is and changes nothing."""
+        from hilbench.online.preview import REGULARIZATION, preview_target
+
+        delay = self.model.effect("delay")
+        delay_samples = float(delay.param("seconds")) * self.fs if delay is not None else 0.0
+        if self.dynamics is None and delay_samples == 0.0:
+            return np.ascontiguousarray(reference, dtype=np.float64)
+        b, a = self.dynamics if self.dynamics is not None else (None, None)
+        target = preview_target(reference, b, a, delay_samples)
+        self.CI[K.CI_PREVIEW] = 1
+        self.CI[K.CI_FF] = 0
+        self.notes = [n for n in self.notes if not n.startswith(("dynamics", "delay not compensated"))]
+        parts = (["the dynamics B/A (stable inversion, non-causal where its zeros demand it; gain limited where "
+                  f"|B/A| < {REGULARIZATION ** 0.5:.2g} of its static gain)"] if b is not None else []) + \
+                ([f"the delay of {delay_samples:.3g} samples"] if delay_samples else [])
+        self.notes.append("feed-forward: " + " and ".join(parts) + " inverted with a preview of the whole reference")
+        self.preview = {"dynamics": b is not None, "delay_samples": delay_samples,
+                        "target_range_um": [float(np.min(target)), float(np.max(target))]}
+        return target
+
     def oiir_arrays(self) -> tuple:
         """The identifier's kernel arguments (a small unused one when not adaptive, so the compiled
         loop has one signature)."""
@@ -589,8 +631,11 @@ class Compensator:
                 self._aux[i] = aux[c]  # type: ignore[index]
         return self._aux
 
-    def step(self, y_d: float, aux: dict[str, float] | None = None) -> float:
-        """Step mode: the command for y_d (um); then call :meth:`update` with what was applied."""
+    def step(self, y_d: float, aux: dict[str, float] | None = None, target: float | None = None) -> float:
+        """Step mode: the command for y_d (um); then call :meth:`update` with what was applied.
+        ``target``: this sample's previewed target (:meth:`enable_preview`)."""
+        if target is not None:
+            self.CX[K.S_TARGET] = target
         return K.comp_step(self.CI, self.CP, self.CX, self.I, self.P, self.X, float(y_d), self._aux_row(aux))
 
     def update(self, y_d: float, u_applied: float, y_meas: float = math.nan,
@@ -599,12 +644,15 @@ class Compensator:
         K.comp_update(self.CI, self.CP, self.CX, self.I, self.P, self.X, self.oiir_arrays(), float(y_d),
                     float(u_applied), float(y_meas), self._aux_row(aux))
 
-    def feedforward(self, y_d: np.ndarray, aux: dict[str, np.ndarray] | None = None) -> np.ndarray:
-        """Block mode, open loop: the commands for a reference, each committed as applied."""
+    def feedforward(self, y_d: np.ndarray, aux: dict[str, np.ndarray] | None = None,
+                    targets: np.ndarray | None = None) -> np.ndarray:
+        """Block mode, open loop: the commands for a reference, each committed as applied
+        (``targets``: the previewed targets of :meth:`enable_preview`)."""
         y = np.ascontiguousarray(y_d, dtype=np.float64)
         out = np.empty_like(y)
+        t = y if targets is None else np.ascontiguousarray(targets, dtype=np.float64)
         K.comp_block(self.CI, self.CP, self.CX, self.I, self.P, self.X, self.oiir_arrays(), y,
-                   self.aux_matrix(aux, y.shape[0]), out)
+                     self.aux_matrix(aux, y.shape[0]), out, t)
         return out
 
     def aux_matrix(self, aux: dict[str, np.ndarray] | None, n: int) -> np.ndarray:
@@ -676,4 +724,8 @@ class Compensator:
                                "loop": self.loop.describe() if self.loop is not None else None}
         if self.oiir is not None:
             doc["online"] = {"M": self.oiir.M, "N": self.oiir.N, "bias": self.oiir.bias}
+        if self.preview is not None:
+            doc["preview"] = self.preview
+        if self.held_before_run:
+            doc["held_before_run_samples"] = self.held_before_run
         return doc

@@ -65,7 +65,8 @@ CI_O_TK = 25  # CI offset: their integer powers k = q e, ascending
 CI_O_TW = 26  # CP offset: their weights
 CI_FASTCOMMIT = 27  # 1: the fpmpi commit updates the static model's memory directly (no model_step)
 CI_FESHARED = 28  # 1: the identifier's front end has the model's fractional polynomial (and fast commit)
-N_CI = 29
+CI_PREVIEW = 29  # 1: the static part's target is CX[S_TARGET], set per sample from the previewed reference
+N_CI = 30
 
 # -- CP: scalars ----------------------------------------------------------------------------------------
 C_US = 0  # model input scale (command units per normalised unit)
@@ -129,9 +130,10 @@ S_NEWTON = 27  # samples solved by the Newton fast path
 S_SPREV2 = 28
 S_SPREV3 = 29
 S_SHIST = 30  # how many of S_SPREV, S_SPREV2, S_SPREV3 are consecutive Newton solutions
-S_RPREV = 31  # the last finite reference, um (the reversal guard's direction); NaN: none yet
+S_RPREV = 31  # the last feed-forward target (the reference, or its preview), um: the reversal guard's direction
 S_GUARDN = 32  # samples whose command the reversal guard held
-N_CX = 33
+S_TARGET = 33  # with CI_PREVIEW: what the static part must deliver this sample, um (hilbench.online.preview)
+N_CX = 34
 
 
 @njit(cache=True, _nrt=False)
@@ -522,6 +524,10 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         CX[S_HELD] += 1.0
         return CX[S_U]
     target = y_d
+    if CI[CI_PREVIEW] != 0:  # dynamics and delay inverted over the whole reference, before the run
+        target = CX[S_TARGET]
+    # the direction the command follows (the reversal guard's): the feed-forward target's
+    heading = target
     # -- feed-forward of the dynamics' inverse (minimum-phase part only) ------------------------------
     nf = CI[CI_FF]
     if nf > 0:
@@ -537,6 +543,7 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
             CX[oz + i] = CP[on + i + 1] * y_d + CX[oz + i + 1] - CP[od + i + 1] * yf
         CX[oz + nf - 1] = CP[on + nf] * y_d - CP[od + nf] * yf
         target = yf
+        heading = y_d
     # -- feedback and the identified correction -------------------------------------------------------------
     if CI[CI_PID] != 0:
         target += CX[S_PID]
@@ -582,15 +589,15 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         rp = CX[S_RPREV]
         if rp == rp and CX[S_STARTED] != 0.0:
             up = CX[S_UAPP]
-            if y_d > rp and u < up:
+            if heading > rp and u < up:
                 u = up
                 CX[S_SAT] = -1.0
                 CX[S_GUARDN] += 1.0
-            elif y_d < rp and u > up:
+            elif heading < rp and u > up:
                 u = up
                 CX[S_SAT] = 1.0
                 CX[S_GUARDN] += 1.0
-        CX[S_RPREV] = y_d
+        CX[S_RPREV] = heading
     CX[S_U] = u
     CX[S_VPREV] = u / us
     return u
@@ -655,10 +662,11 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
 
 @njit(cache=True, _nrt=False)
 def comp_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
-               oa: Any, y_d: np.ndarray, aux: np.ndarray, out: np.ndarray) -> None:
+               oa: Any, y_d: np.ndarray, aux: np.ndarray, out: np.ndarray, targets: np.ndarray) -> None:
     """Open loop (feed-forward only): the commands for y_d, each committed as applied, (n,) ->
-    out; ``aux`` is (n, channels)."""
+    out; ``aux`` is (n, channels); ``targets`` (n,) the previewed targets (read with CI_PREVIEW)."""
     for k in range(y_d.shape[0]):
+        CX[S_TARGET] = targets[k]
         u = comp_step(CI, CP, CX, I, P, X, y_d[k], aux[k])
         comp_update(CI, CP, CX, I, P, X, oa, y_d[k], u, math.nan, aux[k])
         out[k] = u

@@ -7,8 +7,8 @@ which is exact for the bipolar drives of the shipped rigs and too wide for a uni
 fallback is named in the compensator's notes.
 
 The *static map* is the model with its ``dynamics`` and ``delay`` switched off and its auxiliary
-channels held at their references (the compensator inverts exactly that; dynamics are a
-feed-forward pre-filter or left to feedback, a delay is left to feedback). Its *major loop* over a
+channels held at their references (the compensator inverts exactly that; a tracking run inverts
+the dynamics and the delay over its whole reference beforehand, :mod:`hilbench.online.preview`). Its *major loop* over a
 command range ``[a, b]`` is traced as the rig would: from rest to ``a``, up to ``b``, down to ``a``
 (which wipes the model's memory), then the ascending branch ``a -> b`` and the descending branch
 ``b -> a`` are kept (:data:`BRANCH_SAMPLES` samples each, at the model's sample rate; a rate-dependent

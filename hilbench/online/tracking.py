@@ -55,7 +55,7 @@ from numba import njit
 from hilbench.errors import RunStopped, UserError
 from hilbench.online.health import run_health
 from hilbench.online.inverse import PID, Compensator
-from hilbench.online.inverse_kernels import comp_step, comp_update
+from hilbench.online.inverse_kernels import S_TARGET, comp_step, comp_update
 from hilbench.rig.safety import ramp
 from hilbench.sim import kernels as K
 
@@ -102,9 +102,10 @@ def loop_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
 def closed_loop_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
                       oa: Any, F: np.ndarray, L: np.ndarray, B: np.ndarray, lims: np.ndarray, last: np.ndarray,
                       ref: np.ndarray, aux: np.ndarray, out_cmd: np.ndarray, out_applied: np.ndarray,
-                      out_y: np.ndarray) -> int:
+                      out_y: np.ndarray, targets: np.ndarray) -> int:
     """n = len(ref) samples of the fused loop (see :func:`loop_step`); returns how many commands the
-    safety path changed (as :func:`command_path` counts them)."""
+    safety path changed (as :func:`command_path` counts them). ``targets``: the previewed targets of
+    the static part (read when the compensator previews, :meth:`Compensator.enable_preview`)."""
     changed = 0
     lo = lims[0]
     hi = lims[1]
@@ -114,6 +115,7 @@ def closed_loop_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndar
     o = K.plant_out_offset(L)
     for k in range(ref.shape[0]):
         r = ref[k]
+        CX[S_TARGET] = targets[k]
         u = _comp_step(CI, CP, CX, I, P, X, r, aux[k])
         c = _safety(u, lo, hi, ms, last)
         if c != u:
@@ -159,15 +161,16 @@ class SimulatedLoop:
                 aux[channel] = p.read_aux(channel, B[row], aux_noise.get(channel))
         return B, aux
 
-    def run(self, ref: np.ndarray) -> dict[str, Any]:
+    def run(self, ref: np.ndarray, targets: np.ndarray | None = None) -> dict[str, Any]:
         n = ref.shape[0]
         B, aux = self.inputs(n)
         c = self.comp
         F, L = self.plant.step_arrays()
         cmd, applied, y = np.empty(n), np.empty(n), np.empty(n)
+        r = np.ascontiguousarray(ref, dtype=np.float64)
+        t = r if targets is None else np.ascontiguousarray(targets, dtype=np.float64)
         changed = closed_loop_block(c.CI, c.CP, c.CX, c.I, c.P, c.X, c.oiir_arrays(), F, L, B, self.lims,
-                                    self.last, np.ascontiguousarray(ref, dtype=np.float64),
-                                    c.aux_matrix(aux, n), cmd, applied, y)
+                                    self.last, r, c.aux_matrix(aux, n), cmd, applied, y, t)
         self.plant.samples += n
         return {"command": cmd, "input": applied, "output": y, "aux": aux, "changed": changed}
 
@@ -264,10 +267,10 @@ def _open_rig(rig: Any) -> Any:
     return Rig(load_rig(rig))
 
 
-def _drive(rig: Any, comp: Compensator, target: float) -> None:
-    """Move the rig to ``target`` at its slew limit through its safety path (unrecorded), and feed
-    the same applied commands to the compensator's model memory."""
-    commands = ramp(rig.last_applied, target, rig.max_step)
+def _drive(rig: Any, comp: Compensator, target: float, hold: int = 0) -> None:
+    """Move the rig to ``target`` at its slew limit through its safety path (unrecorded), hold it there
+    ``hold`` samples, and feed the same applied commands to the compensator's model memory."""
+    commands = np.concatenate([ramp(rig.last_applied, target, rig.max_step), np.full(max(hold, 0), target)])
     if commands.shape[0] == 0:
         return
     applied = rig.apply(commands)
@@ -291,6 +294,7 @@ def track(
     chunk_samples: int = 65536,
     allow_clip: bool = False,
     check_rate: bool = False,
+    preview: bool = True,
 ) -> TrackResult:
     """Track ``reference`` (um) on ``rig`` with the inverse of ``model`` (a fitted
     :class:`~hilbench.models.Model` or its JSON file); see the module docstring.
@@ -303,6 +307,8 @@ def track(
     leaves the reachable output range clipped to it (else it is refused before the rig moves).
     ``check_rate``: on per-sample devices, paced, the devices' round trips are timed first and a rate
     they cannot hold is refused before the rig moves (:mod:`hilbench.runners.rate_check`).
+    ``preview``: the model's dynamics and delay are inverted over the whole reference before the run
+    (:meth:`Compensator.enable_preview`); False leaves them to the causal pre-filter and feedback.
     """
     from hilbench.models import Model
 
@@ -319,6 +325,8 @@ def track(
                        feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit)
     sensor = rig.config.sensor("output") if hasattr(rig, "config") else None
     ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
+    targets = comp.enable_preview(ref) if preview else ref
+    comp.CX[S_TARGET] = targets[0]  # what the first command (peeked below) is for
     plant = getattr(rig.lockstep, "plant", None)
     on_devices = plant is None or not hasattr(plant, "step_arrays")
     played = False
@@ -339,11 +347,14 @@ def track(
         _drive(rig, comp, comp.range.fitted[1])
     aux0 = _first_aux(rig, comp) if comp.channels else None
     first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
-    _drive(rig, comp, first)
+    # held there until the dynamics have settled: a run that starts while the approach still rings
+    # tracks from a transient the model's memory does not hold
+    comp.held_before_run = comp.settling_samples()
+    _drive(rig, comp, first, hold=comp.held_before_run)
     if on_devices:
         from hilbench.online.tracking_devices import track_on_devices
 
-        return track_on_devices(rig, comp, ref, described, clipped, output, label, aux0, trips)
+        return track_on_devices(rig, comp, ref, described, clipped, output, label, aux0, trips, targets)
     # Lock-step simulation: the fused loop, on the rig's own safety state.
     rig.lockstep.start_run()
     approach_from = rig.last_applied
@@ -355,7 +366,7 @@ def track(
     loop = SimulatedLoop(plant, comp, act.min, act.max, rig.max_step, rig.safety_state)
     for start in range(0, n, chunk_samples):
         stop = min(n, start + chunk_samples)
-        out = loop.run(ref[start:stop])
+        out = loop.run(ref[start:stop], targets[start:stop])
         cmd[start:stop], applied[start:stop], y[start:stop] = out["command"], out["input"], out["output"]
         for k, v in out["aux"].items():
             aux_rec.setdefault(k, []).append(v)

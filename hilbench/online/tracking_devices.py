@@ -66,7 +66,7 @@ class CompensatorLaw:
     reads_reference = True
 
     def __init__(self, comp: Compensator, aux0: dict[str, float] | None, n: int,
-                 on_finish: Any):
+                 on_finish: Any, targets: np.ndarray | None = None):
         from hilbench.runners.fixed_rate import tracking_channels
 
         self.channels = tracking_channels(comp.unit)
@@ -77,9 +77,11 @@ class CompensatorLaw:
         self._on_finish = on_finish
         self._step = comp.step
         self._update = comp.update
+        self.targets = targets
 
     def command(self, reference: float) -> float:
-        u = self._step(reference, self.aux)
+        t = self.targets
+        u = self._step(reference, self.aux, None if t is None else float(t[self.k]))
         self.cmd[self.k] = u
         return u
 
@@ -142,9 +144,11 @@ class PlayedFeedforward:
 
 def track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: dict[str, Any],
                      clipped: dict[str, Any] | None, output: str | Path | None, label: str,
-                     aux0: dict[str, float] | None, trips: dict[str, Any] | None = None) -> TrackResult:
+                     aux0: dict[str, float] | None, trips: dict[str, Any] | None = None,
+                     targets: np.ndarray | None = None) -> TrackResult:
     """Run the tracking run on the rig's devices (see the module docstring) and read back its figures.
-    The rig and the compensator's memory are at the first command already."""
+    The rig and the compensator's memory are at the first command already. ``targets``: the static
+    part's previewed targets per sample (:meth:`Compensator.enable_preview`; None: the reference)."""
     from hilbench.excitation.plan import PlannedRun
     from hilbench.recording.hdf5 import Recording
     from hilbench.recording.lateness import loop_figures
@@ -157,15 +161,16 @@ def track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: di
     def figures(r: np.ndarray, cmd: np.ndarray, applied: np.ndarray, y: np.ndarray) -> dict[str, Any]:
         return _finish_attrs(_result(rig, comp, r, cmd, applied, y, {}, described, clipped))
 
+    targets = ref if targets is None else targets
     if can_play(rig):
-        law: Any = _played_feedforward(rig, comp, ref, figures)
+        law: Any = _played_feedforward(rig, comp, ref, figures, targets)
         mode = "block"
         attrs["played"] = ("the compensator's feedforward commands, computed before the run, played by the "
                            "device's wave generator; its data recorder read the output back")
         source = ReferenceSource(law.commands, described)
     else:
         comp.warm_up(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
-        law = CompensatorLaw(comp, aux0, ref.size, figures)
+        law = CompensatorLaw(comp, aux0, ref.size, figures, targets)
         mode = "fixed-rate"
         source = ReferenceSource(ref, described)
     temporary = tempfile.TemporaryDirectory(prefix="hilbench-track-") if output is None else None
@@ -216,10 +221,11 @@ def refuse_per_sample_law_on_player(rig: Any, comp: Compensator) -> None:
         hint="track without --feedback/--online: the feedforward commands are played as one waveform")
 
 
-def _played_feedforward(rig: Any, comp: Compensator, ref: np.ndarray, on_finish: Any) -> PlayedFeedforward:
+def _played_feedforward(rig: Any, comp: Compensator, ref: np.ndarray, on_finish: Any,
+                        targets: np.ndarray) -> PlayedFeedforward:
     if comp.channels:
         raise UserError(f"the model reads channel(s) {', '.join(comp.channels)} while the run plays, and rig "
                         f"{rig.config.name!r} plays a waveform computed before the run: it cannot follow them",
                         where=rig.config.path or rig.config.name)
-    commands = comp.feedforward(ref)
+    commands = comp.feedforward(ref, targets=targets)
     return PlayedFeedforward(ref, commands, comp.unit, on_finish)

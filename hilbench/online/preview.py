@@ -1,0 +1,92 @@
+"""The dynamics and delay of a model inverted with a preview of the whole reference.
+
+A model hilbench fits is a static hysteresis ``H`` (with its effects) followed by linear dynamics
+``G(z) = B(z)/A(z)`` (unit static gain) and a delay of ``d`` samples (fractional). Tracking wants
+``y = G(z) z^-d H(u) = r``: the compensator inverts ``H`` per sample; what ``H`` must deliver is
+``v = z^d G^-1(z) r``. A causal inverse exists only when ``B`` is minimum phase with a direct term,
+and never for the delay; but a tracking run knows its reference before anything moves, so ``v`` is
+computed for the whole run at once (stable inversion: non-causal where the zeros demand it):
+
+    V(w) = R(w) e^{j w d} conj(G(w)) / (|G(w)|^2 + lam)
+
+over the reference padded at both ends with its end values and blended back to its start, so the
+FFT's circular wrap is smooth and the inverse's transients (each decaying at the rate of a pole or
+a zero) die out in the padding. ``lam`` (Tikhonov) limits the gain where ``|G|`` falls below about
+``sqrt(lam)`` of its static value: above a resonance and at a sampling zero near Nyquist, where an
+exact inverse would demand commands the rig cannot give, ``v`` keeps what the dynamics can pass.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+#: Tikhonov term relative to the static gain squared: inverted exactly down to |G| ~ 3 % of static
+REGULARIZATION = 1e-3
+
+
+def settling_samples(b: np.ndarray, a: np.ndarray, floor: float = 1e-8) -> int:
+    """Samples for the slowest pole or zero of ``B/A`` to decay below ``floor`` (a zero outside the unit
+    circle decays backwards in time at 1/|z|)."""
+    radii = []
+    for poly in (a, b):
+        poly = np.trim_zeros(np.asarray(poly, dtype=np.float64), "b")
+        if poly.size > 1:
+            for z in np.roots(poly):
+                r = abs(z)
+                r = 1.0 / r if r > 1.0 else r
+                if 0.0 < r < 1.0:
+                    radii.append(r)
+    if not radii:
+        return 1
+    slowest = max(radii)
+    if slowest >= 1.0 - 1e-12:
+        return 100_000
+    return int(min(100_000, math.ceil(math.log(floor) / math.log(slowest))))
+
+
+def preview_target(reference: np.ndarray, b: np.ndarray | None, a: np.ndarray | None, delay_samples: float = 0.0,
+                   regularization: float = REGULARIZATION) -> np.ndarray:
+    """What the static part must deliver so that the dynamics ``b/a`` (coefficients in powers of z^-1)
+    and a delay of ``delay_samples`` give ``reference`` (see the module docstring). Non-finite samples
+    of the reference hold the last finite one."""
+    r = np.asarray(reference, dtype=np.float64).copy()
+    n = r.size
+    if n == 0:
+        return r
+    bad = ~np.isfinite(r)
+    if bad.all():
+        return r
+    if bad.any():  # hold the last finite value (the first finite one before it)
+        idx = np.where(~bad, np.arange(n), 0)
+        np.maximum.accumulate(idx, out=idx)
+        first = int(np.flatnonzero(~bad)[0])
+        idx[:first] = first
+        r = r[idx]
+    has_dynamics = b is not None and a is not None and (np.asarray(b).size > 1 or np.asarray(a).size > 1)
+    if not has_dynamics and delay_samples == 0.0:
+        return r
+    if has_dynamics:
+        b = np.asarray(b, dtype=np.float64)
+        a = np.asarray(a, dtype=np.float64)
+        pad = settling_samples(b, a)
+    else:
+        pad = 0
+    pad = max(pad, int(math.ceil(abs(delay_samples))) + 2, 16)
+    blend = max(pad // 2, 8)
+    # r0 .. r0 | r | r_end .. r_end, blended back to r0: the circular sequence is smooth
+    tail = r[-1] + (r[0] - r[-1]) * 0.5 * (1.0 - np.cos(np.pi * np.arange(1, blend + 1) / blend))
+    x = np.concatenate([np.full(pad, r[0]), r, np.full(pad, r[-1]), tail])
+    m = 1 << int(math.ceil(math.log2(x.size)))
+    x = np.concatenate([x, np.full(m - x.size, r[0])])
+    X = np.fft.rfft(x)
+    w = 2.0 * np.pi * np.arange(X.size) / m
+    inv = np.exp(1j * w * delay_samples)
+    if has_dynamics:
+        zinv = np.exp(-1j * w)
+        G = np.polyval(b[::-1], zinv) / np.polyval(a[::-1], zinv)
+        g0 = abs(np.sum(b) / np.sum(a)) if abs(np.sum(a)) > 0 else 1.0
+        inv = inv * np.conj(G) / (np.abs(G) ** 2 + regularization * g0 * g0)
+    v = np.fft.irfft(X * inv, m)
+    return np.ascontiguousarray(v[pad:pad + n])
