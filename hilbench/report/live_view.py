@@ -32,16 +32,10 @@ from typing import Any
 import h5py
 import numpy as np
 
+from hilbench.recording.hdf5 import _pid_alive, _text
+
 #: channels a snapshot never draws as traces (time is the axis; lateness has its own panel)
 _NOT_TRACES = ("time", "lateness")
-
-
-def _text(value: Any) -> Any:
-    if isinstance(value, bytes):
-        return value.decode("utf-8", "replace")
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def _finite(values: np.ndarray) -> list[float | None]:
@@ -95,8 +89,6 @@ def snapshot(path: str | Path, window_s: float = 10.0, max_points: int = 2000) -
 
 def _writer_alive(writer: dict[str, Any]) -> bool | None:
     """Whether the process writing the file lives (None: not on this host or not said)."""
-    from hilbench.recording.hdf5 import _pid_alive
-
     if not writer or writer.get("host") != socket.gethostname():
         return None
     pids = [int(writer.get("pid", -1)), *(int(p) for p in writer.get("helpers", []))]

@@ -9,7 +9,6 @@ for it; it ends by itself when the run does.
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 import sys
 import time
@@ -20,6 +19,7 @@ import pytest
 from hilbench.recording.hdf5 import Recording
 from hilbench.rig.config import load_rig
 from hilbench.rig.emulation import start_emulators
+from tests.browser import chromium
 from tests.runners.emulated import RIGS, config_file
 
 TEMPLATE = RIGS["modbus-keyence"]
@@ -55,14 +55,6 @@ def test_watch_on_a_file_that_is_not_a_recording_is_one_line_exit_2(tmp_path: Pa
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) <= 2 and str(bad) in done.stderr
 
 
-def _chromium() -> str | None:
-    for name in ("/usr/bin/chromium", "chromium", "chromium-browser"):
-        found = shutil.which(name)
-        if found:
-            return found
-    return None
-
-
 def _render(browser: str, url: str, profile: Path, screenshot: Path | None = None) -> str:
     flags = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
              "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
@@ -73,7 +65,7 @@ def _render(browser: str, url: str, profile: Path, screenshot: Path | None = Non
 
 
 def test_the_page_shows_the_samples_so_far_and_updates_while_the_sweep_runs(tmp_path: Path) -> None:
-    browser = _chromium()
+    browser = chromium()
     if browser is None:
         pytest.skip("chromium is not installed (.ci/run installs Debian's)")
     out = tmp_path / "sweep.h5"

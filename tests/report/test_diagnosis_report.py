@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.verdict import Candidate
 from hilbench.report.diagnosis_report import render, spectra, write_report
 from hilbench.identify.metrics import METRIC_KEYS
+from tests.browser import chromium
 
 SINE = "sine:amplitude=5,offset=5,phase_deg=-90,frequency_hz=1,cycles=4"
 HEADINGS = ("Metrics", "Where the error is", "Candidate effects", "Untestable effects", "Steps", "Figures",
@@ -96,16 +96,8 @@ def test_spectra_find_the_error_frequency(diagnosis) -> None:
     assert s["excited"].any() and np.all(s["gain"][s["excited"]] > 0)
 
 
-def _chromium() -> str | None:
-    for name in ("/usr/bin/chromium", "chromium", "chromium-browser"):
-        found = shutil.which(name)
-        if found:
-            return found
-    return None
-
-
 def test_report_renders_in_chromium(report: Path, tmp_path: Path) -> None:
-    browser = _chromium()
+    browser = chromium()
     if browser is None:
         pytest.skip("chromium is not installed")
     png = tmp_path / "report.png"

@@ -32,17 +32,21 @@ SWEEP = "sine:amplitude=1,frequency_hz=1,phase_deg=-90,cycles=2"  # where the si
 REFERENCE_SHARE = 0.8  # of the recorded output range, centred
 
 
-@pytest.fixture(scope="module")
-def fitted(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """A PMPI fit of the rig's simulated reference over +-1 A, and a 1 Hz reference inside what it reached."""
-    folder = tmp_path_factory.mktemp("emulated-track")
-    config = load_rig(RIGS["modbus-keyence"])
+def _fit_pmpi(kind: str, folder: Path) -> dict:
+    """A PMPI fit of the rig's simulated reference over +-1 (A or V: where the simulated plant rises), and
+    a 1 Hz reference over 80 % of what it reached."""
+    config = load_rig(RIGS[kind])
     recording = record_sim(config, plan_from_compact([SWEEP]), folder / "sweep.h5")
     model = fit(recording, "pmpi").model
     y = Recording(recording).runs[0].channel("output")
     mid, half = 0.5 * (y.max() + y.min()), 0.5 * REFERENCE_SHARE * (y.max() - y.min())
-    reference = (f"sine:amplitude={half:.6g},offset={mid:.6g},frequency_hz=1,phase_deg=-90,cycles=1")
+    reference = f"sine:amplitude={half:.6g},offset={mid:.6g},frequency_hz=1,phase_deg=-90,cycles=1"
     return {"model": model, "reference": reference, "config": config, "folder": folder}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return _fit_pmpi("modbus-keyence", tmp_path_factory.mktemp("emulated-track"))
 
 
 def _at_rest(emu, rig) -> None:
@@ -163,15 +167,7 @@ def test_a_device_fault_reaches_the_user_as_one_line_naming_the_device_and_the_r
 
 @pytest.fixture(scope="module")
 def fitted_pi(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """A PMPI fit of the PI rig's simulated reference over +-1 V (where its plant rises), a 1 Hz reference inside it."""
-    folder = tmp_path_factory.mktemp("emulated-track-pi")
-    config = load_rig(RIGS["pi-gcs"])
-    recording = record_sim(config, plan_from_compact([SWEEP]), folder / "sweep.h5")
-    model = fit(recording, "pmpi").model
-    y = Recording(recording).runs[0].channel("output")
-    mid, half = 0.5 * (y.max() + y.min()), 0.5 * REFERENCE_SHARE * (y.max() - y.min())
-    reference = f"sine:amplitude={half:.6g},offset={mid:.6g},frequency_hz=1,phase_deg=-90,cycles=1"
-    return {"model": model, "reference": reference, "config": config}
+    return _fit_pmpi("pi-gcs", tmp_path_factory.mktemp("emulated-track-pi"))
 
 
 def test_on_a_controller_that_plays_waveforms_the_feedforward_is_played_and_read_back(fitted_pi, tmp_path):
