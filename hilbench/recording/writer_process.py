@@ -284,7 +284,7 @@ class WriterProcess:
 
 
 class StreamedRun:
-    """One run written by a :class:`WriterProcess`; stands in for its :class:`RunWriter`.
+    """One run written by a :class:`WriterProcess`; stands in for its :class:`RunWriter` in the loop.
 
     The loop asks for the next slot (:meth:`slot`, ``rows[channel]`` its row), fills up to ``chunk``
     samples of it and hands them over with :meth:`commit`. ``n_samples`` counts what was handed
@@ -327,16 +327,6 @@ class StreamedRun:
         if n:
             self.writer.hand_over(slot, n)
             self.n_samples += n
-
-    def append(self, data: Mapping[str, np.ndarray]) -> None:
-        """Append a block of samples (every channel, one length), through the slots."""
-        n_total = len(np.asarray(data[self.channels[0].name]))
-        for start in range(0, n_total, self.chunk):
-            block = self.slot()
-            n = min(self.chunk, n_total - start)
-            for name, row in self.rows.items():
-                block[row, :n] = np.asarray(data[name], dtype=np.float64)[start:start + n]
-            self.commit(n)
 
     def finish(self, status: str, reason: str = "", extra_attrs: Mapping[str, Any] | None = None) -> None:
         """Wait for the writer to write every chunk and close the file, then write the run's status."""

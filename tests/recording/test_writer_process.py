@@ -40,8 +40,13 @@ def test_more_chunks_than_slots_are_all_written_in_order_and_the_status_comes_la
                 block[:, :n] = values
                 run.commit(n)
                 pieces.append(values)
-            run.append({"time": np.arange(100.0), "input": np.ones(100), "output": -np.ones(100)})
-            pieces.append(np.vstack([np.arange(100.0), np.ones(100), -np.ones(100)]))
+            tail = np.vstack([np.arange(100.0), np.ones(100), -np.ones(100)])
+            for start in range(0, 100, 37):  # a block longer than a slot, handed over slot by slot
+                block = run.slot()
+                n = min(37, 100 - start)
+                block[:, :n] = tail[:, start:start + n]
+                run.commit(n)
+            pieces.append(tail)
             run.finish("complete", extra_attrs={"note": label})
             expected.append(np.hstack(pieces))
     rec = Recording(path)
