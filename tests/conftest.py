@@ -131,6 +131,7 @@ def pytest_configure(config: pytest.Config) -> None:
 # (about 110 s on one core, cold), and on one worker they compile it once and load it from the run's
 # numba cache afterwards, where two workers starting together would each compile it; the emulated
 # 001 sweeps share their simulated reference's diagnosis (test_emulated_rigs' per-process cache).
+# The batch tests share one generated archive and its fit (a module fixture).
 # Grouped here, by the scheduler below, because pytest-xdist 3.8's own `xdist_group` mark renames
 # the items' node ids, which pytest 9 computes afresh (a four-test group ran on both workers).
 SHARED_WORKER_MODULES = {
@@ -141,6 +142,7 @@ SHARED_WORKER_MODULES = {
     "tests/online/test_preview_tracking.py": "closed-loop",
     "tests/runners/test_emulated_track.py": "closed-loop",
     "tests/runners/test_emulated_rigs.py": "emulated-001-sweeps",
+    "tests/archive/test_batch.py": "archive",  # one generated archive, fitted once
 }
 
 

@@ -36,6 +36,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any, Optional
 
 import numpy as np
@@ -639,6 +640,84 @@ def _overall_status(statuses: list[str]) -> str:
 # -- the command --------------------------------------------------------------------------------
 
 
+def check_online_settings(forgetting: float, forgetting_kind: str, delta: float, settle: float,
+                          global_starts: int) -> None:
+    """Refuse identifier settings that cannot work, naming the option."""
+    from hilbench.online.rls import FORGETTING
+
+    if not 0.0 < forgetting <= 1.0:
+        raise UserError(f"lambda = {forgetting:g}: expected 0 < lambda <= 1", where="--forgetting")
+    if forgetting_kind not in FORGETTING:
+        raise UserError(f"{forgetting_kind!r}: expected one of {', '.join(FORGETTING)}", where="--forgetting-kind")
+    if not delta > 0.0:
+        raise UserError(f"delta = {delta:g}: expected > 0", where="--delta")
+    if settle < 0.0:
+        raise UserError(f"{settle:g} s: expected >= 0", where="--settle")
+    if global_starts < 0:
+        raise UserError(f"{global_starts}: expected >= 0", where="--global-starts")
+
+
+def online_on_recordings(paths: Any, *, train: list[str], train_fraction: float, M: int, N: int, forgetting: float,
+                         forgetting_kind: str, delta: float, model: Path | None, settle: float, global_starts: int,
+                         note: Callable[[str], None], quiet: bool = True, prefit: Any = None,
+                         mode: str = "recording") -> tuple[dict[str, Any], list[RunComparison], Any]:
+    """What `hilbench online DATA.h5...` computes: the offline model fitted on the training rows (or
+    ``prefit``), every other run identified online from a fresh identifier, and the comparison
+    document (``--json``). ``paths``: recordings or a loaded Dataset. Also used by `hilbench batch online`."""
+    from hilbench.identify.dataset import as_dataset
+    from hilbench.identify.fitting import assign_roles
+    from hilbench.identify.metrics import metrics
+    from hilbench.models import Model
+
+    dataset = as_dataset(paths)
+    runs = dataset.fit_runs()
+    keeps, left_out = leading_rests(runs)
+    split = assign_roles(runs, train or None, None, train_fraction, keep=keeps)
+    for line in left_out:
+        note(line)
+    if not any(r.validation.any() for r in runs):
+        raise UserError(f"no run is left to identify online ({split})", where="--train")
+    active = [r for r in runs if len(r.data)]
+    masks = [r.train for r in active]
+    if not any(m.any() for m in masks):
+        raise UserError(f"the training set is empty ({split})", where="--train")
+
+    loaded = Model.load(model) if model is not None else None
+    if prefit is None:
+        prefit = fit_front_end(active, masks, loaded, model, split, global_starts, None if quiet else note)
+    front_model, hammerstein, source, fitted_range, front_end = prefit
+    train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
+    train_metrics = _pick(metrics(np.concatenate([a for a, _ in train_y]), np.concatenate([b for _, b in train_y])))
+
+    comparisons = compare(runs, hammerstein, front_end, M=M, N=N, lam=forgetting, delta=delta,
+                          forgetting=forgetting_kind, settle_s=settle,
+                          units=(dataset.input_unit, dataset.output_unit))
+    settings = {"M": M, "N": N, "lambda": forgetting, "delta": delta, "forgetting": forgetting_kind,
+                "outlier": "huber", "settle_s": settle}
+    doc: dict[str, Any] = {
+        "mode": mode,
+        "files": [str(p) for p in dataset.paths],
+        "replay": "each evaluated run is fed to a fresh identifier sample by sample in recorded order "
+                  "(block mode: the same kernel as step mode)",
+        "split": split,
+        "left_out": left_out,
+        "settle_s": settle,
+        "offline": {"spec": hammerstein.spec, "source": source, "train": train_metrics,
+                    "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()},
+                    "status": _overall_status([c.offline_check.get("status", "ok") for c in comparisons])},
+        "front_end": {"operators": int(front_end.r.size), "exponents": front_end.exps.tolist(),
+                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0]),
+                      "input_range": list(fitted_range) if fitted_range is not None else None,
+                      "input_range_note": "the identifier's front end holds its input within the training rows' "
+                                          "range (the offline model is simulated without)" if fitted_range else
+                                          "none: the front end was loaded"},
+        "online": {**settings, "weights": comparisons[0].weight_names if comparisons else []},
+        "comparison": COMPARISON,
+        "runs": [c.to_json() for c in comparisons],
+    }
+    return doc, comparisons, dataset
+
+
 @app.command("online")
 @user_errors
 def online(
@@ -686,28 +765,12 @@ def online(
     prediction, the held offline Hammerstein model's free-run output and the naive y(k-1) are scored
     with re_n2_pct and re_ninf_pct (000 eq. 18, Table 4).
     """
-    from hilbench.identify.dataset import as_dataset
-    from hilbench.identify.fitting import assign_roles
-    from hilbench.identify.metrics import metrics
-    from hilbench.models import Model
-    from hilbench.online.oiir import OFFLINE_SPEC, FPMPIFrontEnd, offline_hammerstein
-    from hilbench.online.rls import FORGETTING
-
     def note(message: str) -> None:
         if not quiet:
             typer.echo(message, err=True)
 
     M, N = parse_orders(orders)
-    if not 0.0 < forgetting <= 1.0:
-        raise UserError(f"lambda = {forgetting:g}: expected 0 < lambda <= 1", where="--forgetting")
-    if forgetting_kind not in FORGETTING:
-        raise UserError(f"{forgetting_kind!r}: expected one of {', '.join(FORGETTING)}", where="--forgetting-kind")
-    if not delta > 0.0:
-        raise UserError(f"delta = {delta:g}: expected > 0", where="--delta")
-    if settle < 0.0:
-        raise UserError(f"{settle:g} s: expected >= 0", where="--settle")
-    if global_starts < 0:
-        raise UserError(f"{global_starts}: expected >= 0", where="--global-starts")
+    check_online_settings(forgetting, forgetting_kind, delta, settle, global_starts)
 
     rig_name = None
     prefit = None
@@ -732,52 +795,10 @@ def online(
             raise UserError("--excitation and --record sweep a rig; DATA names recordings here",
                             hint="give a rig config or built-in rig name instead of a recording")
         paths = [Path(p) for p in data]
-    dataset = as_dataset(paths)
-    runs = dataset.fit_runs()
-    keeps, left_out = leading_rests(runs)
-    split = assign_roles(runs, train or None, None, train_fraction, keep=keeps)
-    for line in left_out:
-        note(line)
-    if not any(r.validation.any() for r in runs):
-        raise UserError(f"no run is left to identify online ({split})", where="--train")
-    active = [r for r in runs if len(r.data)]
-    masks = [r.train for r in active]
-    if not any(m.any() for m in masks):
-        raise UserError(f"the training set is empty ({split})", where="--train")
-
-    loaded = Model.load(model) if model is not None else None
-    if prefit is None:
-        prefit = fit_front_end(active, masks, loaded, model, split, global_starts, None if quiet else note)
-    front_model, hammerstein, source, fitted_range, front_end = prefit
-    train_y = [(r.data.output[m], y[m]) for r, m, y in zip(active, masks, hammerstein.simulate_runs([r.data for r in active]))]
-    train_metrics = _pick(metrics(np.concatenate([a for a, _ in train_y]), np.concatenate([b for _, b in train_y])))
-
-    comparisons = compare(runs, hammerstein, front_end, M=M, N=N, lam=forgetting, delta=delta,
-                          forgetting=forgetting_kind, settle_s=settle,
-                          units=(dataset.input_unit, dataset.output_unit))
-    settings = {"M": M, "N": N, "lambda": forgetting, "delta": delta, "forgetting": forgetting_kind,
-                "outlier": "huber", "settle_s": settle}
-    doc: dict[str, Any] = {
-        "mode": "rig" if is_rig else "recording",
-        "files": [str(p) for p in paths],
-        "replay": "each evaluated run is fed to a fresh identifier sample by sample in recorded order "
-                  "(block mode: the same kernel as step mode)",
-        "split": split,
-        "left_out": left_out,
-        "settle_s": settle,
-        "offline": {"spec": hammerstein.spec, "source": source, "train": train_metrics,
-                    "dynamics": {p.name: p.value for p in hammerstein.effect("dynamics").shape()},
-                    "status": _overall_status([c.offline_check.get("status", "ok") for c in comparisons])},
-        "front_end": {"operators": int(front_end.r.size), "exponents": front_end.exps.tolist(),
-                      "w_p": front_end.w_p.tolist(), "u_scale": float(front_end.fe[0]),
-                      "input_range": list(fitted_range) if fitted_range is not None else None,
-                      "input_range_note": "the identifier's front end holds its input within the training rows' "
-                                          "range (the offline model is simulated without)" if fitted_range else
-                                          "none: the front end was loaded"},
-        "online": {**settings, "weights": comparisons[0].weight_names if comparisons else []},
-        "comparison": COMPARISON,
-        "runs": [c.to_json() for c in comparisons],
-    }
+    doc, comparisons, dataset = online_on_recordings(
+        paths, train=train, train_fraction=train_fraction, M=M, N=N, forgetting=forgetting,
+        forgetting_kind=forgetting_kind, delta=delta, model=model, settle=settle, global_starts=global_starts,
+        note=note, quiet=quiet, prefit=prefit, mode="rig" if is_rig else "recording")
     if rig_name is not None:
         doc["rig"] = rig_name
         doc["mode_note"] = ("rig: the plan was swept through the runner into the recording, then replayed through "
@@ -795,6 +816,7 @@ def online(
             entry["live_vs_replay_max_abs"] = float(np.max(np.abs(recorded_online - c.online)))
     if output is not None:
         doc["output"] = str(output)
+        settings = {k: v for k, v in doc["online"].items() if k != "weights"}
         doc["output_runs"] = write_online(output, comparisons, settings, dataset.output_unit, dataset.input_unit)
         note(f"wrote {output}: runs {', '.join(doc['output_runs'])}")
     if plot_png is not None:

@@ -90,6 +90,8 @@ class Diagnosis:
             "where": self.where,
             "effects": [c.to_json() for c in self.effects],
             "untestable": self.untestable,
+            # the final model's parameters with units (the spec's, after any --add/--auto step)
+            "model": {"spec": self.result.model.spec, "parameters": self.result.model.to_dict()["parameters"]},
         }
         if self.result.notes:  # what was left out and why, runs that did not complete, ...
             out["notes"] = list(self.result.notes)

@@ -190,6 +190,15 @@ class Dataset:
         return cls(paths, runs, keys, "/".join(sorted(units["input"])), "/".join(sorted(units["output"])) or "um",
                    notes)
 
+    def only(self, selector: str) -> Dataset:
+        """The dataset of one run (group name, label or 1-based number), read as if its file held it alone."""
+        index = match_runs([selector], self.fit_runs(), "RUN")
+        if len(index) != 1:
+            raise DataError(f"{selector!r} names {len(index)} runs; expected one", where=str(self.paths[0]))
+        i = index.pop()
+        return Dataset(self.paths, [self.runs[i]], [self.runs[i].name], self.input_unit, self.output_unit,
+                       list(self.notes))
+
     def fit_runs(self) -> list[FitRun]:
         """Fresh runs for one fit: no roles yet, no model output."""
         return [FitRun(key, data, np.zeros(len(data), bool), np.zeros(len(data), bool))

@@ -289,6 +289,21 @@ def check_recording(path: Path) -> None:
     if not path.exists():
         raise DataError("file not found", where=str(path))
     try:
+        # Opened without SWMR first: a damaged file (cut short by a copy, a full disk) fails here at
+        # once, where a SWMR reader retries its metadata reads for minutes. A file being written by
+        # a SWMR writer, or left with its flags by a crashed one, refuses this open; only then is
+        # it opened as a SWMR reader, which is what reads it.
+        with h5py.File(path, "r"):
+            pass
+    except OSError as exc:
+        text = " ".join(str(exc).split())
+        if "truncated" in text:
+            raise DataError(f"not a readable HDF5 file: it is cut short ({text.split('(')[-1].rstrip(')')})",
+                            where=str(path), hint="the copy or the write that made it did not finish") from exc
+        if "already open for write" not in text and "lock" not in text:
+            raise DataError(f"not a readable HDF5 file ({exc.__class__.__name__}: {text[:160]})",
+                            where=str(path)) from exc
+    try:
         with h5py.File(path, "r", swmr=True) as f:
             fmt = _text(f.attrs.get("format", ""))
             version = _text(f.attrs.get("format_version", -1))
