@@ -252,12 +252,26 @@ HELP: dict[str, str] = {
 }
 
 
+def check_settings(settings: dict[str, Any]) -> None:
+    """ValueError naming the key and value of an emulator setting that cannot work."""
+    for key in ("servo_bandwidth_hz", "on_target_um", "servo_rate_hz"):
+        value = float(settings[key])
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{key} = {settings[key]!r}: expected a number > 0")
+    if not float(settings["travel_min_um"]) < float(settings["travel_max_um"]):
+        raise ValueError(f"travel_min_um = {settings['travel_min_um']!r} must be below "
+                         f"travel_max_um = {settings['travel_max_um']!r}")
+    if not float(settings["min_v"]) < float(settings["max_v"]):
+        raise ValueError(f"min_v = {settings['min_v']!r} must be below max_v = {settings['max_v']!r}")
+
+
 class PIGCSEmulator(LineServer):
     """A running emulated controller; ``url`` (pty) and ``tcp_url`` go into a driver table."""
 
     name = "pi-gcs"
 
     def __init__(self, settings: dict[str, Any], world: World):
+        check_settings(settings)  # before a pty or a port is taken
         tcp_port = settings.get("tcp_port")
         super().__init__(tcp_port=None if tcp_port is None else int(tcp_port))
         self.world = world

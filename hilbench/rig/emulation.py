@@ -205,7 +205,10 @@ def start_emulators(config: RigConfig) -> EmulatedRig:
                 raise ConfigError(f"[devices.{name}] driver {table['driver']!r} has no emulator", where=config.path)
             known = {s.name for s in getattr(driver, "settings", ())} or set(table)
             settings = _emulator_settings(name, table, known, token)
-            emulator = start(settings, world)
+            try:
+                emulator = start(settings, world)
+            except ValueError as exc:  # an emulator refusing a setting names the key and value
+                raise ConfigError(f"[devices.{name}] {exc}", where=config.path) from None
             rig.emulators[name] = emulator
             point: dict[str, Any] = {}
             if "url" in known:

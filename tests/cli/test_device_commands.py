@@ -237,3 +237,14 @@ def test_write_config_never_overwrites_the_config_it_emulates(tmp_path):
     line = one_line_error(runner.invoke(app, ["emulate", str(copy), "--seconds", "0", "--write-config", str(copy)]))
     assert "the config being emulated" in line
     assert copy.read_text(encoding="utf-8") == PI_TEMPLATE.read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('axis = "1"', 'axis = "1"\nservo_bandwidth_hz = -5.0', "[devices.pi] servo_bandwidth_hz = -5.0: expected a number > 0"),
+    ("travel_min_um = 0.0", "travel_min_um = 300.0",
+     "[devices.pi] travel_min_um = 300.0 must be below travel_max_um = 200.0"),
+])
+def test_emulate_refuses_an_emulator_setting_that_cannot_work_in_one_line(old, new, message, tmp_path):
+    config = tmp_path / "bad.toml"
+    config.write_text(PI_TEMPLATE.read_text(encoding="utf-8").replace(old, new), encoding="utf-8")
+    assert message in one_line_error(runner.invoke(app, ["emulate", str(config), "--seconds", "0"]))
