@@ -7,8 +7,9 @@ the bytes on the wire):
   (byte 0x09, wave generator status) and ``#24`` (byte 0x18, stop all) have no LF;
 * set commands never reply. Errors are kept in an error register that ``ERR?`` returns and clears
   (``0`` = no error), so the practice is to send ``ERR?`` after every command that can fail. A query
-  that fails gets *no* reply at all; after a silent query this driver asks ``ERR?`` before deciding it
-  was a timeout;
+  that fails is answered by an empty line (docs/decisions/0095); this driver then asks ``ERR?`` for
+  the reason. Firmware that stays silent instead is handled too: after a silent query the driver asks
+  ``ERR?`` before deciding it was a timeout;
 * a reply line ending in ``" \\n"`` (space before LF) is continued by the next line; the last line
   ends in a bare LF. Query replies read ``<id>=<value>``, e.g. ``POS? 1`` -> ``1=10.000000``;
 * ``DRR?`` answers with a GCS array: ``# key = value`` header lines (``TYPE``, ``SEPARATOR``, ``DIM``,
@@ -184,6 +185,14 @@ class PIGCSController:
     def _gcs_error(self, code: int, what: str) -> DeviceError:
         return DeviceError(self.name, f"{what} refused: GCS error {code}: {gcs_error_text(code)}")
 
+    def _refused(self, what: str) -> DeviceError:
+        """An empty reply: the controller refused the query; ``ERR?`` says why."""
+        self.link.write(b"ERR?\n")
+        code = self._parse_err(self.link.read_line("ERR?").decode("ascii", "replace"))
+        if code:
+            return self._gcs_error(code, what)
+        return DeviceError(self.name, f"empty reply to {what} (and ERR? reports no error)")
+
     def _read_reply(self, what: str) -> list[str]:
         """One reply: lines up to the one not ending in a space (GCS continuation rule)."""
         lines: list[str] = []
@@ -206,10 +215,14 @@ class PIGCSController:
             self.link.discard_input()
             self.link.write(payload)
             try:
-                return [self._read_reply(c)[0] for c in commands]
+                replies = [self._read_reply(c)[0] for c in commands]
             except DeviceTimeout as exc:
                 self._check_after_silence(exc, what)
                 raise
+            for c, reply in zip(commands, replies):
+                if not reply.strip():
+                    raise self._refused(c)
+            return replies
 
         return retry(attempt, device=self.name, what=what, attempts=self.attempts, backoff_s=self.backoff_s)
 
@@ -220,10 +233,13 @@ class PIGCSController:
             self.link.discard_input()
             self.link.write(command.encode("ascii") + (b"" if len(command) == 1 else b"\n"))
             try:
-                return self._read_reply(command)
+                lines = self._read_reply(command)
             except DeviceTimeout as exc:
                 self._check_after_silence(exc, command)
                 raise
+            if len(lines) == 1 and not lines[0].strip():
+                raise self._refused(repr(command) if len(command) == 1 else command)
+            return lines
 
         return retry(attempt, device=self.name, what=command, attempts=self.attempts, backoff_s=self.backoff_s)
 
@@ -452,6 +468,11 @@ SETTINGS = (
     Setting("realtime", bool, default=False, doc="emulator: the wave generator takes the waveform's real duration"),
     Setting("tcp_port", int, doc="emulator: also serve GCS on 127.0.0.1:tcp_port (0 = any free port)"),
     Setting("model", str, default="E-727", doc="emulator: model in the *IDN? reply"),
+    Setting("servo_bandwidth_hz", float, default=100.0,
+            doc="emulator: closed-loop bandwidth of the stage, Hz (a 10 um MOV settles in about 1.4/bandwidth s)"),
+    Setting("on_target_um", float, default=0.02, doc="emulator: on-target window of ONT?, um"),
+    Setting("travel_min_um", float, default=0.0, doc="emulator: lowest commandable position (TMN?), um"),
+    Setting("travel_max_um", float, default=100.0, doc="emulator: highest commandable position (TMX?), um"),
 )
 
 DRIVER = DriverSpec(

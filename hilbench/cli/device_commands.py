@@ -168,7 +168,12 @@ def emulate(
         [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...", help="With --dry-run: runs in compact form. Repeatable.",
     ),
     output: Optional[Path] = typer.Option(None, "--output", "-o", help="With --dry-run: the recording (.h5)."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout (the devices' URLs)."),
+    write_config: Optional[Path] = typer.Option(
+        None, "--write-config", metavar="OUT.toml", help="Write the config with every device url pointed at the "
+        "running emulators, to sweep or track it from another shell while this runs.",
+    ),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON document on stdout: per device its url, "
+                                 "pty path and 127.0.0.1 TCP host:port."),
 ) -> None:
     """Start the emulators of a real-rig config's devices and print the settings that reach them.
 
@@ -176,12 +181,15 @@ def emulate(
     127.0.0.1 socket for serial, a Modbus server on 127.0.0.1, a python-can virtual bus), all backed
     by one simulated plant from the config's [plant]. Put the printed url (or interface/channel) in
     the device tables and dry-run the config with `hilbench sweep CONFIG` from another shell while
-    this runs (until Ctrl-C or --seconds); a python-can virtual bus reaches no other process, so
-    such a rig is dry-run in this one with --dry-run.
+    this runs (until Ctrl-C or --seconds), or let --write-config OUT.toml write that config for
+    you; a python-can virtual bus reaches no other process, so such a rig is dry-run in this one
+    with --dry-run.
     """
     from hilbench.rig.config import load_rig
 
     rig_config = load_rig(config)
+    if write_config is not None:
+        _check_output_config(write_config, Path(rig_config.path))
     if not rig_config.devices:
         raise UserError("a simulated rig (driver = 'sim') has no devices to emulate", where=rig_config.path,
                         hint="emulate a real-rig config with [devices.NAME] tables, e.g. one of configs/templates/")
@@ -192,6 +200,8 @@ def emulate(
     emulated = start_emulators(rig_config)
     try:
         document = {"config": rig_config.path, **_describe(emulated, rig_config), "host": "127.0.0.1"}
+        if write_config is not None:
+            document["written_config"] = str(emulated.write_config(write_config))
         if dry_run:
             document["dry_run"] = _dry_run(emulated, rig_config, excitation, output)
         if as_json:
@@ -201,6 +211,8 @@ def emulate(
             for name, point in document["devices"].items():
                 settings = ", ".join(f"{k} = {v!r}" for k, v in point.items() if k != "driver")
                 typer.echo(f"  [devices.{name}] driver = {point.get('driver', '?')!r}: {settings}")
+            if write_config is not None:
+                typer.echo(f"wrote {document['written_config']}: the config pointed at these emulators")
             if dry_run:
                 d = document["dry_run"]
                 typer.echo(f"dry run: {d['file']}: {len(d['runs'])} run(s), status {d['status']}")
@@ -221,6 +233,20 @@ def emulate(
                 typer.echo("stopping the emulators", err=True)
     finally:
         emulated.close()
+
+
+def _check_output_config(out: Path, source: Path) -> None:
+    """Refuse, in one line naming the value, an --write-config path that cannot be written."""
+    where = f"--write-config {out}"
+    if out.suffix.lower() != ".toml":
+        raise UserError("expected a .toml file name", where=where, hint="e.g. --write-config rig-emulated.toml")
+    if out.exists() and out.resolve() == source.resolve():
+        raise UserError("that is the config being emulated; it is never overwritten", where=where,
+                        hint="give another file name")
+    if not out.parent.is_dir():
+        raise UserError(f"folder {str(out.parent)!r} does not exist", where=where)
+    if out.is_dir():
+        raise UserError("is a folder, expected a file", where=where)
 
 
 # -- run -----------------------------------------------------------------------------------------------

@@ -138,10 +138,14 @@ def _timed_round_trips(rig_config: Any, allow_late: bool) -> dict[str, Any]:
     is), close them; refused (exit 2) when the rig's rate cannot be held, unless ``allow_late``."""
     from hilbench.rig.rig import Rig
     from hilbench.runners.rate_check import require_rate, time_round_trips
+    from hilbench.runners.sweep import select_mode
 
     with Rig(rig_config) as rig:
-        trips = time_round_trips(rig) if allow_late else require_rate(rig)
-    return trips.describe()
+        # a device that plays each run on its own clock (a PI wave generator) paces the run: its
+        # round trip is reported, but it does not limit the rate (run_plan checks only fixed-rate runs)
+        mode = select_mode(rig)
+        trips = time_round_trips(rig) if allow_late or mode != "fixed-rate" else require_rate(rig)
+    return {**trips.describe(), "mode": mode}
 
 
 def _loop_figures(path: Path, groups: list[str]) -> dict[str, dict[str, Any]]:

@@ -13,6 +13,8 @@ third-party driver with an emulator works the same way):
 
 * ``url``: the emulator's own (a pty path, ``tcp://127.0.0.1:PORT``, ``socket://127.0.0.1:PORT``);
   a ``tcp://`` address is served on 127.0.0.1 on a free port, never on the configured host or port;
+  a driver with a ``tcp_port`` setting (a line-protocol emulator) serves its pty and 127.0.0.1 TCP
+  on a free port, and a configured ``socket://`` url is pointed at the TCP one;
 * ``interface``/``channel`` (python-can): the ``virtual`` interface on a channel of its own, so two
   emulated rigs never share a bus.
 
@@ -24,7 +26,10 @@ the Modbus module's counts or a CANopen PV scale, are honoured by the emulators 
 from __future__ import annotations
 
 import dataclasses
+import json
+import re
 import uuid
+from pathlib import Path
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,6 +51,8 @@ class EmulatedRig:
     emulators: dict[str, Any] = field(default_factory=dict)
     #: device name -> the settings that point the device at its emulator (url, interface, channel)
     settings: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: device name -> every way to reach its emulator: ``pty`` (path), ``tcp`` ("127.0.0.1:PORT"), ``port``
+    endpoints: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def config_for_emulators(self) -> RigConfig:
         """The rig config with every device's settings pointing at its running emulator."""
@@ -55,8 +62,27 @@ class EmulatedRig:
     def describe(self) -> dict[str, Any]:
         """JSON-ready: per device, its driver and the settings to use (what ``hilbench emulate`` prints)."""
         return {"rig": self.config.name, "sample_rate_hz": self.config.sample_rate_hz,
-                "devices": {name: {"driver": self.config.devices[name]["driver"], **s}
+                "devices": {name: {"driver": self.config.devices[name]["driver"], **s,
+                                   **self.endpoints.get(name, {})}
                             for name, s in self.settings.items()}}
+
+    def write_config(self, out: str | Path) -> Path:
+        """Write the config file with every device's url (interface, channel) set to its emulator.
+
+        The user's file is copied as text, so comments and layout stay; only the keys that reach the
+        emulators change (a device table that lives in a base config gets an overriding table), and a
+        relative ``extends`` path is made absolute so the copy reads the same base from anywhere.
+        """
+        out = Path(out)
+        source = Path(self.config.path)
+        text = source.read_text(encoding="utf-8")
+        text = _absolute_extends(text, source.parent)
+        for name, settings in self.settings.items():
+            text = _set_device_keys(text, name, settings)
+        header = (f"# Written by `hilbench emulate {source.name}`: every device url points at an emulator\n"
+                  "# on this machine, reachable while that command runs. The original is left as it was.\n")
+        out.write_text(header + text, encoding="utf-8")
+        return out
 
     def close(self) -> None:
         """Stop every emulator (idempotent); the first error is raised after all were tried."""
@@ -75,6 +101,48 @@ class EmulatedRig:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _toml_value(value: Any) -> str:
+    """A TOML literal for a str, bool, int or float setting (a JSON string is a TOML basic string)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    return json.dumps(str(value))
+
+
+def _set_device_keys(text: str, name: str, settings: dict[str, Any]) -> str:
+    """``text`` with ``key = value`` set in its ``[devices.NAME]`` table (added when absent)."""
+    header = re.compile(rf'^[ \t]*\[[ \t]*devices[ \t]*\.[ \t]*"?{re.escape(name)}"?[ \t]*\][ \t]*(#.*)?$', re.M)
+    found = header.search(text)
+    lines = [f"{key} = {_toml_value(value)}" for key, value in settings.items()]
+    if found is None:  # the table is in a base config: override it here
+        return text.rstrip("\n") + f"\n\n[devices.{name}]\n" + "\n".join(lines) + "\n"
+    start = found.end()
+    following = re.compile(r"^[ \t]*\[", re.M).search(text, start)
+    end = following.start() if following else len(text)
+    body = text[start:end]
+    for key, line in zip(settings, lines):
+        pattern = re.compile(rf"^[ \t]*{re.escape(key)}[ \t]*=.*$", re.M)
+        if pattern.search(body):
+            body = pattern.sub(lambda _m, line=line: line, body, count=1)
+        else:
+            body = body.rstrip("\n") + f"\n{line}\n" + ("\n" if following else "")
+    return text[:start] + body + text[end:]
+
+
+def _absolute_extends(text: str, folder: Path) -> str:
+    """A relative ``extends = "file"`` that names a file beside the config, made absolute."""
+
+    def absolute(match: re.Match[str]) -> str:
+        base = match.group(2)
+        for candidate in (folder / base, folder / f"{base}.toml"):
+            if candidate.is_file():
+                return f"{match.group(1)}{json.dumps(str(candidate.resolve()))}"
+        return match.group(0)  # a built-in rig name: found from anywhere
+
+    return re.sub(r'^([ \t]*extends[ \t]*=[ \t]*)"([^"\n]*)"', absolute, text, flags=re.M)
 
 
 def build_world(config: RigConfig) -> SimWorld:
@@ -98,7 +166,23 @@ def _emulator_settings(name: str, table: dict[str, Any], known: set[str], token:
     if "interface" in known and "channel" in known:  # a python-can bus
         settings["interface"] = "virtual"
         settings["channel"] = f"hilbench-emulate-{token}-{name}"
+    if "tcp_port" in known and settings.get("tcp_port") is None:
+        settings["tcp_port"] = 0  # the pty and a free local TCP port: the config may name either
     return settings
+
+
+def _endpoints(emulator: Any) -> dict[str, Any]:
+    """Every way to reach a running emulator: its pty path and its 127.0.0.1 TCP host:port."""
+    out: dict[str, Any] = {}
+    url = str(getattr(emulator, "url", "") or "")
+    if url.startswith("/dev/"):
+        out["pty"] = url
+    tcp = str(getattr(emulator, "tcp_url", "") or "") or (url if "://" in url else "")
+    if tcp.startswith(("socket://", "tcp://")):
+        host_port = tcp.split("://", 1)[1]
+        out["tcp"] = host_port
+        out["port"] = int(host_port.rsplit(":", 1)[1])
+    return out
 
 
 def start_emulators(config: RigConfig) -> EmulatedRig:
@@ -121,11 +205,17 @@ def start_emulators(config: RigConfig) -> EmulatedRig:
                 raise ConfigError(f"[devices.{name}] driver {table['driver']!r} has no emulator", where=config.path)
             known = {s.name for s in getattr(driver, "settings", ())} or set(table)
             settings = _emulator_settings(name, table, known, token)
-            emulator = start(settings, world)
+            try:
+                emulator = start(settings, world)
+            except ValueError as exc:  # an emulator refusing a setting names the key and value
+                raise ConfigError(f"[devices.{name}] {exc}", where=config.path) from None
             rig.emulators[name] = emulator
             point: dict[str, Any] = {}
             if "url" in known:
-                point["url"] = str(emulator.url)
+                configured = str(table.get("url", ""))
+                tcp_url = getattr(emulator, "tcp_url", None)
+                point["url"] = str(tcp_url if configured.startswith("socket://") and tcp_url else emulator.url)
+            rig.endpoints[name] = _endpoints(emulator)
             if str(settings.get("interface")) == "virtual" and "interface" in known and "channel" in known:
                 point["interface"], point["channel"] = settings["interface"], settings["channel"]
             rig.settings[name] = point

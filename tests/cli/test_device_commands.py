@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import signal
+import subprocess
 import sys
+import time
 from pathlib import Path
 
 import h5py
@@ -110,10 +113,14 @@ def test_emulate_prints_where_every_device_of_a_template_listens(template):
         url = point.get("url", "")
         if url.startswith(("tcp://", "socket://")):
             assert url.split("://")[1].startswith("127.0.0.1:")  # loopback only, never the real device's host
+            assert point["tcp"] == url.split("://")[1] and point["port"] == int(url.rsplit(":", 1)[1])
         elif "url" in point:
-            assert url.startswith("/dev/")  # a pty
+            assert url.startswith("/dev/") and point["pty"] == url  # a pty
         else:
             assert point["interface"] == "virtual"
+        if point["driver"] == "pi-gcs":  # a line-protocol emulator: its pty AND its TCP port, both printed
+            assert point["pty"].startswith("/dev/") and point["tcp"].startswith("127.0.0.1:")
+            assert point["port"] == int(point["tcp"].rsplit(":", 1)[1]) > 0
 
 
 @pytest.mark.skipif(not TEMPLATES, reason="no real-rig templates in configs/templates/")
@@ -132,3 +139,112 @@ def test_emulate_dry_run_records_through_the_real_drivers(tmp_path):
         assert {d["driver"] for d in devices} <= SHIPPED - {"sim"}
         output = run["output"][:]
     assert output.max() - output.min() > 0  # the emulated plant moved and the real driver read it
+
+
+# -- emulate --write-config: the template pointed at its emulators, then swept from another process ---------
+PI_TEMPLATE = REPO / "configs" / "templates" / "piezo-pi-e727.toml"
+
+
+def _reaches_other_processes(template: Path) -> bool:
+    from hilbench.rig.config import load_rig
+
+    return all("url" in table for table in load_rig(template).devices.values())  # no python-can virtual bus
+
+
+CROSS_PROCESS = [t for t in TEMPLATES if _reaches_other_processes(t)]
+
+
+@pytest.mark.parametrize("template", CROSS_PROCESS, ids=[t.stem for t in CROSS_PROCESS])
+def test_a_template_through_emulate_write_config_passes_sweep_check_and_sweeps(template, tmp_path):
+    """`hilbench emulate T --write-config OUT` in one process, `hilbench sweep OUT` in another, as a
+    user dry-runs a real-rig template: nothing copied by hand."""
+    written = tmp_path / "rig-emulated.toml"
+    emulate = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", str(template), "--json",
+                                "--write-config", str(written), "--seconds", "120"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not written.exists() and emulate.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert written.exists(), emulate.stderr.read() if emulate.poll() is not None else "no config written"
+        from hilbench.rig.config import load_rig
+
+        config = load_rig(written)
+        for table in config.devices.values():
+            if table["url"].startswith(("socket://", "tcp://")):
+                assert table["url"].split("://")[1].startswith("127.0.0.1:")
+            else:
+                assert table["url"].startswith("/dev/")
+        # the PI controller's wave generator paces its runs: --check passes at 2 kHz whatever the round
+        # trip; per-sample rigs depend on this machine's round trip (tests/runners/test_rate_check.py)
+        late = [] if template == PI_TEMPLATE else ["--allow-late"]
+        check = runner.invoke(app, ["sweep", str(written), "--check", "--json", *late,
+                                    "-e", "sine:amplitude=1,frequency_hz=5,cycles=1"])
+        assert check.exit_code == 0, check.output
+        checked = json.loads(check.stdout)
+        assert checked["plan_ok"] is True
+        assert checked["round_trips"]["mode"] == ("block" if template == PI_TEMPLATE else "fixed-rate")
+        out = tmp_path / "swept.h5"
+        plan = "sine:amplitude=2,offset=5,frequency_hz=5,cycles=2" if template == PI_TEMPLATE else \
+            "sine:amplitude=1,frequency_hz=5,cycles=1"
+        swept = runner.invoke(app, ["sweep", str(written), "-e", plan, "-o", str(out), "-q", "--json", *late])
+        assert swept.exit_code == 0, swept.output
+        assert json.loads(swept.stdout)["status"] == "complete"
+        with h5py.File(out, "r") as f:
+            (run,) = [f["runs"][name] for name in f["runs"]]
+            devices = {d["driver"] for d in json.loads(run.attrs["devices"])}
+            output = run["output"][:]
+        assert devices == {t["driver"] for t in load_rig(template).devices.values()}
+        assert output.max() - output.min() > 1.0  # the emulated plant moved and the real driver read it
+    finally:
+        emulate.send_signal(signal.SIGINT)  # Ctrl-C: the emulators stop and the command exits 0
+        stdout, stderr = emulate.communicate(timeout=30)
+    assert emulate.returncode == 0, stderr
+    document = json.loads(stdout)
+    assert document["written_config"] == str(written)
+    assert set(document["devices"]) == set(load_rig(template).devices)
+
+
+def test_the_pi_template_is_among_them():
+    assert PI_TEMPLATE in CROSS_PROCESS
+
+
+def test_write_config_keeps_the_file_and_changes_only_what_reaches_the_emulators(tmp_path):
+    out = tmp_path / "pi.toml"
+    result = runner.invoke(app, ["emulate", str(PI_TEMPLATE), "--seconds", "0", "--write-config", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    point = json.loads(result.stdout)["devices"]["pi"]
+    original = PI_TEMPLATE.read_text(encoding="utf-8").splitlines()
+    written = out.read_text(encoding="utf-8").splitlines()[2:]  # after the two header lines
+    changed = [(a, b) for a, b in zip(original, written) if a != b]
+    assert len(original) == len(written)
+    assert changed == [('url = "socket://192.168.168.10:50000"', f'url = "{point["url"]}"')]
+
+
+@pytest.mark.parametrize("value, message", [
+    ("rig.txt", "expected a .toml file name"),
+    ("no-such-folder/rig.toml", "does not exist"),
+])
+def test_write_config_refuses_a_bad_value_in_one_line(value, message, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    line = one_line_error(runner.invoke(app, ["emulate", str(PI_TEMPLATE), "--seconds", "0", "--write-config", value]))
+    assert f"--write-config {value}" in line and message in line
+
+
+def test_write_config_never_overwrites_the_config_it_emulates(tmp_path):
+    copy = tmp_path / "mine.toml"
+    copy.write_text(PI_TEMPLATE.read_text(encoding="utf-8"), encoding="utf-8")
+    line = one_line_error(runner.invoke(app, ["emulate", str(copy), "--seconds", "0", "--write-config", str(copy)]))
+    assert "the config being emulated" in line
+    assert copy.read_text(encoding="utf-8") == PI_TEMPLATE.read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('axis = "1"', 'axis = "1"\nservo_bandwidth_hz = -5.0', "[devices.pi] servo_bandwidth_hz = -5.0: expected a number > 0"),
+    ("travel_min_um = 0.0", "travel_min_um = 300.0",
+     "[devices.pi] travel_min_um = 300.0 must be below travel_max_um = 200.0"),
+])
+def test_emulate_refuses_an_emulator_setting_that_cannot_work_in_one_line(old, new, message, tmp_path):
+    config = tmp_path / "bad.toml"
+    config.write_text(PI_TEMPLATE.read_text(encoding="utf-8").replace(old, new), encoding="utf-8")
+    assert message in one_line_error(runner.invoke(app, ["emulate", str(config), "--seconds", "0"]))

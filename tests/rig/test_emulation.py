@@ -112,3 +112,23 @@ def test_close_is_idempotent_and_stops_every_emulator(running):
     emu.close()
     emu.close()
     assert emu.emulators == {} and not aio._thread.is_alive()
+
+
+def test_write_config_overrides_a_base_table_and_makes_a_local_extends_absolute(running, tmp_path):
+    """A user's rig file that extends a template beside it and sets no url of its own: the written copy
+    (in another folder) gets an overriding device table and still finds its base."""
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "base.toml").write_text(KEYENCE.read_text(encoding="utf-8"), encoding="utf-8")
+    mine = folder / "rig.toml"
+    mine.write_text('# my rig\n[rig]\nname = "mine"\nextends = "base"\n\n[devices.laser]\nbaud = 38400\n',
+                    encoding="utf-8")
+    emu = running(mine)
+    out = emu.write_config(tmp_path / "elsewhere.toml")
+    text = out.read_text(encoding="utf-8")
+    assert "# my rig" in text and f'extends = "{(folder / "base.toml").resolve()}"' in text
+    assert f'[devices.laser]\nbaud = 38400\nurl = "{emu.settings["laser"]["url"]}"' in text
+    assert f'[devices.aio]\nurl = "{emu.settings["aio"]["url"]}"' in text  # the base's table, overridden
+    written = load_rig(out)
+    assert written.devices["aio"]["url"] == emu.settings["aio"]["url"] and written.devices["aio"]["unit_id"] == 1
+    assert written.devices["laser"]["baud"] == 38400 and written.devices["laser"]["url"].startswith("/dev/")
