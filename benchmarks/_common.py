@@ -149,3 +149,35 @@ def environment() -> dict[str, Any]:
 def note(*parts: Any) -> None:
     """Progress and notes go to stderr; stdout carries only the JSON document."""
     print(*parts, file=sys.stderr, flush=True)
+
+
+def map_cases(func: Any, jobs: list[Any], workers: int = 1, scheduler: str | None = None,
+              jsonl: str | None = None) -> list[Any]:
+    """``func`` over ``jobs`` through hilbench's batch engine (hilbench.archive.engine): in this process
+    when ``workers`` is 1 and no scheduler is given (for a debugger), else on a local Dask cluster of
+    ``workers`` processes or the cluster at ``scheduler``, whose workers need this folder at the same
+    path. Results in the order of ``jobs``; each is appended to ``jsonl`` as it arrives."""
+    import json
+
+    def keep(result: Any) -> None:
+        if jsonl:  # one line per finished case: a long run can be read (and summarised) while it runs
+            with open(jsonl, "a", encoding="utf-8") as f:
+                f.write(json.dumps(result, default=float) + "\n")
+
+    if workers == 1 and not scheduler:
+        results = []
+        for job in jobs:
+            results.append(func(job))
+            keep(results[-1])
+        return results
+    from hilbench.archive.engine import DaskEngine
+
+    results_by_index: dict[int, Any] = {}
+    with DaskEngine(scheduler, None if scheduler else workers, sys_path=[str(Path(__file__).resolve().parent)]) as engine:
+        for outcome in engine.map_unordered(func, jobs):
+            job = jobs[outcome.index]
+            result = outcome.result if outcome.ok else {"seed": job[0] if isinstance(job, tuple) else job,
+                                                        "error": outcome.error}
+            results_by_index[outcome.index] = result
+            keep(result)
+    return [results_by_index[i] for i in range(len(jobs))]

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import statistics
 import sys
 import tempfile
@@ -115,12 +114,9 @@ def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
 _JSONL: str | None = None
 
 
-def _worker(args: tuple[int, bool, str]) -> dict[str, Any]:
-    r = run_case(*args)
-    if _JSONL:  # one line per finished case, so a long run can be read (and summarised) while it runs
-        with open(_JSONL, "a", encoding="utf-8") as f:
-            f.write(json.dumps(r, default=float) + "\n")
-    return r
+def run_case_of(args: tuple[int, bool, str]) -> dict[str, Any]:
+    """One job of :func:`run` (a tuple: what a Dask task carries)."""
+    return run_case(*args)
 
 
 def _hidden_key(r: dict[str, Any]) -> str:
@@ -219,7 +215,7 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
 
 
 def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
-        only: list[int] | None = None) -> dict[str, Any]:
+        only: list[int] | None = None, scheduler: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
@@ -228,11 +224,7 @@ def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, a
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
-        if workers == 1:
-            results = [_worker(j) for j in jobs]
-        else:
-            with mp.get_context("fork").Pool(workers, maxtasksperchild=20) as pool:
-                results = sorted(pool.imap_unordered(_worker, jobs, chunksize=1), key=lambda r: seeds.index(r["seed"]))
+        results = C.map_cases(run_case_of, jobs, workers, scheduler, _JSONL)
     finally:
         tmp.cleanup()
     wall = time.perf_counter() - t0
@@ -258,7 +250,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="randomized benchmark of hilbench diagnose (hidden effect found?)")
     ap.add_argument("--cases", type=int, default=200, help="number of cases (seeds --seed ..)")
     ap.add_argument("--seed", type=int, default=0, help="first case seed")
-    ap.add_argument("--workers", type=int, default=1, help=f"worker processes (at most {MAX_WORKERS})")
+    ap.add_argument("--workers", type=int, default=1, help=f"worker processes of a local Dask cluster (at most "
+                    f"{MAX_WORKERS}; 1: in this process)")
+    ap.add_argument("--scheduler", type=str, default=None, help="an existing Dask scheduler (tcp://HOST:PORT) whose "
+                    "workers have this folder and hilbench at the same paths")
     ap.add_argument("--auto", action="store_true", help="also run diagnose(..., auto=True)")
     ap.add_argument("--auto-cases", type=int, default=None, help="with --auto: only the first N cases")
     ap.add_argument("--only", type=int, nargs="*", help="these case seeds instead of a range")
@@ -282,7 +277,7 @@ def main(argv: list[str] | None = None) -> None:
         import diagnosis_regressions as DR
 
         only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only)
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
     text = json.dumps(doc, indent=2, default=float)

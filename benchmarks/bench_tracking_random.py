@@ -50,7 +50,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import multiprocessing as mp
 import statistics
 import sys
 import tempfile
@@ -256,12 +255,9 @@ def _fmt(r: dict[str, Any]) -> str:
 _JSONL: str | None = None
 
 
-def _worker(args: tuple[int, str]) -> dict[str, Any]:
-    r = run_case(*args)
-    if _JSONL:
-        with open(_JSONL, "a", encoding="utf-8") as f:
-            f.write(json.dumps(r, default=float) + "\n")
-    return r
+def run_case_of(args: tuple[int, str]) -> dict[str, Any]:
+    """One job of :func:`run` (a tuple: what a Dask task carries)."""
+    return run_case(*args)
 
 
 def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
@@ -330,7 +326,8 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def run(cases: int = 30, seed: int = 0, workers: int = 1, only: list[int] | None = None) -> dict[str, Any]:
+def run(cases: int = 30, seed: int = 0, workers: int = 1, only: list[int] | None = None,
+        scheduler: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-track-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
@@ -338,11 +335,7 @@ def run(cases: int = 30, seed: int = 0, workers: int = 1, only: list[int] | None
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
-        if workers == 1:
-            results = [_worker(j) for j in jobs]
-        else:
-            with mp.get_context("fork").Pool(workers, maxtasksperchild=10) as pool:
-                results = sorted(pool.imap_unordered(_worker, jobs, chunksize=1), key=lambda r: seeds.index(r["seed"]))
+        results = C.map_cases(run_case_of, jobs, workers, scheduler, _JSONL)
     finally:
         tmp.cleanup()
     wall = time.perf_counter() - t0
@@ -369,14 +362,17 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description="randomized tracking benchmark (feed-forward bound, feedback, refusals)")
     ap.add_argument("--cases", type=int, default=30, help="number of rigs (seeds --seed ..)")
     ap.add_argument("--seed", type=int, default=0, help="first rig seed")
-    ap.add_argument("--workers", type=int, default=1, help=f"worker processes (at most {MAX_WORKERS})")
+    ap.add_argument("--workers", type=int, default=1, help=f"worker processes of a local Dask cluster (at most "
+                    f"{MAX_WORKERS}; 1: in this process)")
+    ap.add_argument("--scheduler", type=str, default=None, help="an existing Dask scheduler (tcp://HOST:PORT) whose "
+                    "workers have this folder and hilbench at the same paths")
     ap.add_argument("--only", type=int, nargs="*", help="these rig seeds instead of a range")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each rig's row to this file as it finishes")
     a = ap.parse_args(argv)
     global _JSONL
     _JSONL = a.jsonl
-    doc = run(a.cases, a.seed, a.workers, a.only)
+    doc = run(a.cases, a.seed, a.workers, a.only, a.scheduler)
     text = json.dumps(doc, indent=2, default=float)
     if a.output:
         Path(a.output).write_text(text, encoding="utf-8")

@@ -59,16 +59,22 @@ def _ignore_interrupts() -> None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
-def _plugin() -> Any:
+def _plugin(sys_path: Sequence[str], local: bool) -> Any:
     from distributed.diagnostics.plugin import WorkerPlugin
 
-    class IgnoreInterrupts(WorkerPlugin):
-        name = "hilbench-ignore-interrupts"
+    class WorkerSetup(WorkerPlugin):
+        name = "hilbench-worker-setup"
 
         def setup(self, worker: Any) -> None:  # every worker, those the nanny restarts included
-            _ignore_interrupts()
+            import sys
 
-    return IgnoreInterrupts()
+            for folder in reversed(sys_path):
+                if folder not in sys.path:
+                    sys.path.insert(0, folder)
+            if local:
+                _ignore_interrupts()
+
+    return WorkerSetup()
 
 
 @dataclass
@@ -88,7 +94,7 @@ class DaskEngine:
     """A Dask client for one batch; a context manager that closes what it started."""
 
     def __init__(self, scheduler: str | None = None, workers: int | None = None, *, allowed_failures: int = 1,
-                 local_directory: str | None = None):
+                 local_directory: str | None = None, sys_path: Sequence[str] = ()):
         self.address = scheduler or os.environ.get(SCHEDULER_ENV) or None
         if workers is not None and workers < 1:
             raise UserError(f"{workers}: expected at least 1 worker", where="--workers")
@@ -98,6 +104,7 @@ class DaskEngine:
         self.workers = workers
         self.allowed_failures = allowed_failures
         self.local_directory = local_directory
+        self.sys_path = list(sys_path)  # folders a task's own modules are imported from (the benchmarks')
         self.client: Any = None
         self.cluster: Any = None
 
@@ -133,13 +140,23 @@ class DaskEngine:
 
             n = self.workers or available_cores()
             # a dead worker's task is retried this many times before it is reported
+            environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ"))
+            # Dask sets MALLOC_TRIM_THRESHOLD_ in its workers to return memory sooner; setting it at all
+            # turns off glibc's adaptive mmap threshold, so every large numpy temporary is mmapped and
+            # faulted in afresh: a diagnosis of 1e5 samples took 14.2 s on a worker against 5.0 s in
+            # this process. Its statistical profiler, sampling the task's stack every 10 ms, cost most
+            # of the rest (6.0 -> 5.2 s). docs/decisions/0091.
+            environ["MALLOC_TRIM_THRESHOLD_"] = None
             with dask.config.set({"distributed.scheduler.allowed-failures": self.allowed_failures,
-                                  "distributed.worker.daemon": True}):
+                                  "distributed.worker.daemon": True,
+                                  "distributed.nanny.pre-spawn-environ": environ,
+                                  "distributed.worker.profile.enabled": False}):
                 self.cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                             dashboard_address=None, silence_logs=logging.ERROR,
                                             local_directory=self.local_directory)
                 self.client = Client(self.cluster)
-            self.client.register_plugin(_plugin())
+        if self.sys_path or self.cluster is not None:
+            self.client.register_plugin(_plugin(self.sys_path, local=self.cluster is not None))
         self.client.run(_warm)
         return self
 
