@@ -181,3 +181,13 @@ def map_cases(func: Any, jobs: list[Any], workers: int = 1, scheduler: str | Non
             results_by_index[outcome.index] = result
             keep(result)
     return [results_by_index[i] for i in range(len(jobs))]
+
+
+def print_document(doc: Any, output: str | None = None) -> None:
+    """The benchmark's JSON on stdout, and in ``output`` when given."""
+    import json
+
+    text = json.dumps(doc, indent=2, default=float)
+    if output:
+        Path(output).write_text(text, encoding="utf-8")
+    print(text)

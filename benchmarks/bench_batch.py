@@ -143,10 +143,7 @@ def main(argv: list[str] | None = None) -> None:
     doc = {"fit": run(a.recordings, a.seconds, a.model, "fit")}
     if a.diagnose_recordings:
         doc["diagnose"] = run(a.diagnose_recordings, a.seconds, a.model, "diagnose")
-    text = json.dumps(doc, indent=2, default=float)
-    if a.output:
-        Path(a.output).write_text(text, encoding="utf-8")
-    print(text)
+    C.print_document(doc, a.output)
 
 
 if __name__ == "__main__":

@@ -280,10 +280,7 @@ def main(argv: list[str] | None = None) -> None:
     doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
-    text = json.dumps(doc, indent=2, default=float)
-    if a.output:
-        Path(a.output).write_text(text, encoding="utf-8")
-    print(text)
+    C.print_document(doc, a.output)
 
 
 if __name__ == "__main__":

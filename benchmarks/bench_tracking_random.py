@@ -48,7 +48,6 @@ Nothing is tuned per rig: the generator draws from physics, every stage runs wit
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import sys
@@ -373,10 +372,7 @@ def main(argv: list[str] | None = None) -> None:
     global _JSONL
     _JSONL = a.jsonl
     doc = run(a.cases, a.seed, a.workers, a.only, a.scheduler)
-    text = json.dumps(doc, indent=2, default=float)
-    if a.output:
-        Path(a.output).write_text(text, encoding="utf-8")
-    print(text)
+    C.print_document(doc, a.output)
 
 
 if __name__ == "__main__":

@@ -17,7 +17,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RUN_AS_WRITTEN = ("rigs", "sweep gmm-issf-duhem", "sweep gmm-gu2016 --plan", "sweep piezo-pmpi --plan",
-                  "show sweep.h5", "plot sweep.h5", "import data.csv", "fit sweep.h5")
+                  "show sweep.h5", "plot sweep.h5", "import data.csv", "fit sweep.h5", "batch example", "batch fit")
 
 
 def tour_lines() -> list[list[str]]:
@@ -33,7 +33,7 @@ def tour_lines() -> list[list[str]]:
 
 def test_tour_runs_from_an_empty_directory(tmp_path):
     lines = tour_lines()
-    assert len(lines) >= 9, lines  # the tour still has the lines this test runs
+    assert len(lines) >= 11, lines  # the tour still has the lines this test runs
     rows = "\n".join(f"{k / 100:.2f};{k % 10};{(k % 10) * 0.5:.2f}" for k in range(200))
     (tmp_path / "data.csv").write_bytes(("time[s];input[V];output[µm]\n" + rows + "\n").encode("latin-1"))
     for argv in lines:
@@ -45,5 +45,6 @@ def test_tour_runs_from_an_empty_directory(tmp_path):
                            capture_output=True, text=True, timeout=300)
     units = {c["name"]: c["units"] for c in json.loads(shown.stdout)["runs"][0]["channels"]}
     assert units == {"time": "s", "input": "V", "output": "um"}
-    for name in ("sweep.h5", "id.h5", "track.h5", "loop.png", "fit.json", "fit.png"):
+    for name in ("sweep.h5", "id.h5", "track.h5", "loop.png", "fit.json", "fit.png", "results/results.parquet",
+                 "results/report.html"):
         assert (tmp_path / name).is_file(), name

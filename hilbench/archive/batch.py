@@ -20,7 +20,14 @@ from hilbench import progress
 from hilbench.archive.engine import DaskEngine
 from hilbench.archive.results import HASHES_FILE, ResultStore
 from hilbench.archive.sources import HashCache, find_recordings
-from hilbench.archive.tasks import ALL_RUNS, COMMANDS, EACH, ArchiveTask, base_row, run_task
+from hilbench.archive.tasks import (
+    ALL_RUNS,
+    COMMANDS,
+    EACH,
+    ArchiveTask,
+    base_row,
+    run_task,
+)
 from hilbench.errors import UserError
 
 

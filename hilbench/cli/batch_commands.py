@@ -45,7 +45,6 @@ TEST = typer.Option([], "--test", metavar="RUN", help="As in the single command:
 def _batch(command: str, sources: list[str], options: dict[str, Any], output: Optional[Path], scheduler: Optional[str],
            workers: Optional[int], each: str, retry_failed: bool, no_report: bool, as_json: bool, quiet: bool) -> None:
     from hilbench.archive.batch import run_batch
-
     from hilbench.archive.sources import content_hash
 
     out = output or Path(f"batch-{command}")

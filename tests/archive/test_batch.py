@@ -23,6 +23,14 @@ HILBENCH = [sys.executable, "-m", "hilbench.cli"]
 RECORDINGS = 50
 
 
+def first_days(archive: Path, folder: Path, count: int) -> Path:
+    """A folder holding copies of the archive's first ``count`` days."""
+    folder.mkdir()
+    for path in sorted(archive.glob("stack-*.h5"))[:count]:
+        shutil.copy(path, folder / path.name)
+    return folder
+
+
 def hilbench(*args: str, timeout: float = 300) -> subprocess.CompletedProcess[str]:
     return subprocess.run([*HILBENCH, *args], capture_output=True, text=True, timeout=timeout)
 
@@ -112,10 +120,7 @@ def test_identical_files_are_computed_once_and_listed_twice(archive: Path, tmp_p
 
 
 def test_ctrl_c_keeps_every_finished_row_and_a_rerun_finishes(archive: Path, tmp_path: Path) -> None:
-    folder = tmp_path / "eight"
-    folder.mkdir()
-    for path in sorted(archive.glob("stack-*.h5"))[:8]:
-        shutil.copy(path, folder / path.name)
+    folder = first_days(archive, tmp_path / "eight", 8)
     out = tmp_path / "out"
     args = ["batch", "diagnose", str(folder), "-m", "pi", "-o", str(out), "--workers", "1"]
     process = subprocess.Popen([*HILBENCH, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -170,3 +175,26 @@ def test_bad_input_is_one_line_and_exit_2(args: list[str], where: str, archive: 
     lines = [line for line in done.stderr.splitlines() if line.startswith("error:")]
     assert len(lines) == 1 and where in lines[0], done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_online_rows_are_what_the_single_command_prints(archive: Path, tmp_path: Path) -> None:
+    folder = first_days(archive, tmp_path / "two", 2)
+    out = tmp_path / "out"
+    done = hilbench("batch", "online", str(folder), "--global-starts", "2", "-o", str(out), "--workers", "1", "--json")
+    assert done.returncode == 0, done.stderr
+    rows = read_table(out / "results.parquet")
+    assert [r["status"] for r in rows] == ["done", "done"]
+    single = hilbench("online", str(folder / rows[1]["name"]), "--global-starts", "2", "--json")
+    assert single.returncode == 0, single.stderr
+    expected = row_fields("online", json.loads(single.stdout))
+    for column in ("online_re_n2_pct", "offline_re_n2_pct", "persistence_re_n2_pct", "train_rmse", "final_spec"):
+        assert rows[1][column] == expected[column], column
+    assert rows[1]["online_re_n2_pct"] < rows[1]["persistence_re_n2_pct"]  # the identifier predicts better than y(k-1)
+
+
+def test_docs_list_every_column() -> None:
+    from hilbench.archive.results import COLUMNS
+
+    text = (Path(__file__).resolve().parents[2] / "docs" / "archive.md").read_text(encoding="utf-8")
+    for name, kind, meaning in COLUMNS:
+        assert f"| `{name}` | {kind} | {meaning} |" in text, name
