@@ -48,6 +48,11 @@ class BatchSummary:
     files: dict[str, str] = field(default_factory=dict)
     rows: list[dict[str, Any]] = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        return (f"BatchSummary({self.command}: {len(self.rows)} rows of {self.tasks}, {self.failed} failed, "
+                f"{self.computed} computed, {self.skipped} already there{', interrupted' if self.interrupted else ''};"
+                f" {self.output / 'results.parquet'})")
+
     def to_json(self) -> dict[str, Any]:
         done = [r for r in self.rows if r["status"] == "done"]
         task_s = sorted(float(r["task_s"]) for r in done if r.get("task_s") == r.get("task_s"))

@@ -30,6 +30,38 @@ EACH = ("file", "run")
 ALL_RUNS = "*"
 
 
+#: every option of each command, with the single command's default (the keys the CLI's batch writes)
+DEFAULTS: dict[str, dict[str, Any]] = {
+    "fit": {"model": None, "train": [], "test": [], "train_fraction": None},
+    "diagnose": {"model": None, "add": None, "auto": False, "train": [], "test": [], "train_fraction": 0.7,
+                 "from_s": None, "to_s": None, "exclude": []},
+    "online": {"train": [], "train_fraction": 0.3, "orders": "3,5", "forgetting": 1.0,
+               "forgetting_kind": "directional", "delta": 1.0e5, "online_model": None, "settle": 0.5,
+               "global_starts": 16},
+}
+
+
+def default_options(command: str, given: dict[str, Any]) -> dict[str, Any]:
+    """The options of ``command`` with the single command's defaults where ``given`` is silent (for
+    `online`, ``model`` names the saved front end, as `hilbench online --model`)."""
+    if command not in DEFAULTS:
+        raise UserError(f"{command!r}: expected one of {', '.join(COMMANDS)}", where="command")
+    given = dict(given)
+    if command == "online" and "model" in given:
+        given["online_model"] = given.pop("model")
+    unknown = sorted(set(given) - set(DEFAULTS[command]))
+    if unknown:
+        raise UserError(f"{', '.join(unknown)}: not an option of {command}; expected "
+                        f"{', '.join(k for k in DEFAULTS[command])}", where="options")
+    options = {**DEFAULTS[command], **given}
+    if command in ("fit", "diagnose") and not options["model"]:
+        raise UserError(f"{command} needs model= (a spec such as 'pi', or a FIT.json)", where="model")
+    for key in ("train", "test", "exclude"):
+        if key in options:
+            options[key] = list(options[key])
+    return options
+
+
 @dataclass(frozen=True)
 class ArchiveTask:
     """What a worker needs: the command, its options (JSON-ready), the recording and which runs."""

@@ -46,7 +46,9 @@ def _batch(command: str, sources: list[str], options: dict[str, Any], output: Op
            workers: Optional[int], each: str, retry_failed: bool, no_report: bool, as_json: bool, quiet: bool) -> None:
     from hilbench.archive.batch import run_batch
     from hilbench.archive.sources import content_hash
+    from hilbench.archive.tasks import default_options
 
+    options = default_options(command, options)  # the keys the Python API's batch writes: the same rows
     out = output or Path(f"batch-{command}")
     for key in ("model", "online_model"):  # a saved model keys the rows by its content, as the recordings do
         value = options.get(key)

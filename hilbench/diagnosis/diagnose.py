@@ -83,6 +83,14 @@ class Diagnosis:
     def best(self) -> Candidate | None:
         return self.effects[0] if self.effects else None
 
+    def __repr__(self) -> str:
+        found = [c.effect for c in self.effects if c.significant]
+        added = [s["added"] for s in self.steps if s.get("added")]
+        rmse = self.metrics["validation"].get("rmse", float("nan"))
+        return (f"Diagnosis({self.spec!r}: validation rmse {rmse:.4g} {self.result.output_unit}"
+                + (f", added {' + '.join(added)}" if added else "")
+                + (f", still significant: {', '.join(found)}" if found else ", nothing significant left") + ")")
+
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {
             "spec": self.spec,

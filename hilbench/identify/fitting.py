@@ -147,6 +147,13 @@ class FitResult:
             "date": self.date,
         }
 
+    def __repr__(self) -> str:
+        validation = self.metrics.get("validation") or {}
+        verb = "fitted" if self.refitted else "scored"
+        return (f"FitResult({self.spec!r} {verb} on {len(self.runs)} run(s): validation rmse "
+                f"{validation.get('rmse', float('nan')):.4g} {self.output_unit}, erms "
+                f"{validation.get('erms_pct', float('nan')):.3g} %)")
+
     def to_json(self) -> dict[str, Any]:
         """One JSON-ready document (NaN written as null): spec, model, metrics, runs, fit, fitted_on."""
         return finite_json({

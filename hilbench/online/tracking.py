@@ -241,6 +241,11 @@ class TrackResult:
     def error(self) -> np.ndarray:
         return self.reference - self.output
 
+    def __repr__(self) -> str:
+        return (f"TrackResult({self.time.size} samples, erms {self.metrics.get('erms_pct', float('nan')):.3g} %, "
+                f"max error {self.metrics.get('max_abs_error', float('nan')):.4g} um"
+                + (f", run {self.group} of {self.file}" if self.file else "") + ")")
+
     def to_json(self) -> dict[str, Any]:
         return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
                 "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,

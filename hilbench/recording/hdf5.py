@@ -26,7 +26,7 @@ import h5py
 import numpy as np
 
 from hilbench import __version__
-from hilbench.errors import DataError
+from hilbench.errors import DataError, UserError
 from hilbench.recording.lateness import loop_figures
 from hilbench.recording.recover import clear_stale_write_flags, write_flags
 
@@ -368,6 +368,23 @@ class Run:
             group = f[f"runs/{self.name}"]
             return {c: np.asarray(group[c][: self.n_samples], dtype=np.float64) for c in self.channels}
 
+    def to_dataframe(self) -> Any:
+        """Every channel as a pandas DataFrame, one column per channel (units in ``.attrs["units"]``).
+        pandas is not a dependency of hilbench: install it for this (``pip install pandas``)."""
+        try:
+            import pandas as pd
+        except ImportError:
+            raise UserError("pandas is not installed; Run.data() gives the same channels as numpy arrays",
+                            hint="pip install pandas") from None
+        frame = pd.DataFrame(self.data())
+        frame.attrs["units"] = dict(self.units)
+        frame.attrs["run"] = self.name
+        return frame
+
+    def __repr__(self) -> str:
+        return (f"Run({self.name!r}, {self.status}, {self.n_samples} samples at {self.sample_rate_hz:g} Hz, "
+                f"channels {', '.join(f'{c} [{u}]' for c, u in self.units.items())})")
+
 
 class Recording:
     """Read access to a recording: runs, channels with units, attributes."""
@@ -393,6 +410,9 @@ class Recording:
 
     def __iter__(self) -> Iterator[Run]:
         return iter(self.runs)
+
+    def __repr__(self) -> str:
+        return f"Recording({str(self.path)!r}, {len(self.runs)} runs: {', '.join(r.name for r in self.runs)})"
 
     def __len__(self) -> int:
         return len(self.runs)

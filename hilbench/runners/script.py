@@ -313,6 +313,15 @@ class Bench:
         if self._closed:
             raise UserError("the bench is closed: the script has ended")
 
+    def __enter__(self) -> Bench:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
+        self.close(success=exc_type is None)
+
+    def __repr__(self) -> str:
+        return f"Bench(rig={self.config.name!r}, output_dir={str(self.output_dir)!r}{', closed' if self._closed else ''})"
+
     def close(self, success: bool) -> None:
         """Make every rig safe (ramp to rest; ``success=False`` tells the device it was a failure), close it."""
         if self._closed:

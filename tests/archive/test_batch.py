@@ -198,3 +198,19 @@ def test_docs_list_every_column() -> None:
     text = (Path(__file__).resolve().parents[2] / "docs" / "archive.md").read_text(encoding="utf-8")
     for name, kind, meaning in COLUMNS:
         assert f"| `{name}` | {kind} | {meaning} |" in text, name
+
+
+def test_options_are_the_single_commands_and_a_wrong_one_is_named() -> None:
+    from hilbench.archive.tasks import default_options
+    from hilbench.errors import UserError
+
+    assert default_options("fit", {"model": "pi"}) == {"model": "pi", "train": [], "test": [], "train_fraction": None}
+    assert default_options("online", {"model": "front.json"})["online_model"] == "front.json"
+    for command, given, where in (("fit", {"model": "pi", "auto": True}, "auto"), ("diagnose", {}, "model"),
+                                  ("plot", {}, "plot")):
+        try:
+            default_options(command, given)
+        except UserError as exc:
+            assert where in exc.line()
+        else:
+            raise AssertionError((command, given))
