@@ -67,7 +67,11 @@ def online(data: PathLike | Sequence[PathLike], *, train: Sequence[str] = (), tr
            model: PathLike | None = None, settle: float = 0.5, global_starts: int = 16) -> dict[str, Any]:
     """`hilbench online` on recordings: paper 000's identifier run over every evaluated run against the
     offline model; the document the command prints with ``--json``."""
-    from hilbench.cli.online_commands import check_online_settings, online_on_recordings, parse_orders
+    from hilbench.cli.online_commands import (
+        check_online_settings,
+        online_on_recordings,
+        parse_orders,
+    )
 
     M, N = parse_orders(orders)
     check_online_settings(forgetting, forgetting_kind, delta, settle, global_starts)
