@@ -110,6 +110,9 @@ class DriverSpec:
     emulator: Callable[..., Any] | None = None  # start_emulator(settings, world) -> Emulator (see Lazy)
     description: str = ""
     transports: tuple[str, ...] = field(default_factory=tuple)  # e.g. ("serial", "socket://")
+    #: what to install before the driver can open a device, when an optional dependency is missing
+    #: (e.g. "pip install 'hilbench[nidaqmx]'"); "" when everything it needs is importable
+    install_hint: str = ""
 
     def problems(self, table: dict[str, Any]) -> list[str]:
         """What is wrong with a driver table (unknown, missing or mistyped keys); empty when fine.

@@ -64,6 +64,7 @@ def driver_description(name: str) -> dict[str, Any]:
         "transports": list(getattr(driver, "transports", ()) or ()),
         "description": str(getattr(driver, "description", "") or ""),
         "emulator": getattr(driver, "emulator", None) is not None,
+        "install": str(getattr(driver, "install_hint", "") or ""),
         "settings": settings,
     }
 
@@ -108,6 +109,8 @@ def devices(as_json: bool = typer.Option(False, "--json", help="Print one JSON d
             extras.append(f"transports: {', '.join(d['transports'])}")
         extras.append("emulator: yes" if d["emulator"] else "emulator: no")
         typer.echo(f"    {'; '.join(extras)}")
+        if d["install"]:
+            typer.echo(f"    needs an optional package: {d['install']}")
         for s in d["settings"]:
             if s["required"]:
                 status = "required"

@@ -11,8 +11,9 @@ gives that config (:meth:`EmulatedRig.config_for_emulators`), so a real-rig conf
 What changes in a device's settings to reach its emulator, by setting name (not by driver, so a
 third-party driver with an emulator works the same way):
 
-* ``url``: the emulator's own (a pty path, ``tcp://127.0.0.1:PORT``, ``socket://127.0.0.1:PORT``);
-  a ``tcp://`` address is served on 127.0.0.1 on a free port, never on the configured host or port;
+* ``url``: the emulator's own (a pty path, ``tcp://127.0.0.1:PORT``, ``socket://127.0.0.1:PORT``,
+  ``grpc://127.0.0.1:PORT`` for an NI gRPC Device Server); a ``tcp://`` or ``grpc://`` address is
+  served on 127.0.0.1 on a free port, never on the configured host or port;
   a driver with a ``tcp_port`` setting (a line-protocol emulator) serves its pty and 127.0.0.1 TCP
   on a free port, and a configured ``socket://`` url is pointed at the TCP one;
 * ``interface``/``channel`` (python-can): the ``virtual`` interface on a channel of its own, so two
@@ -161,8 +162,9 @@ def _emulator_settings(name: str, table: dict[str, Any], known: set[str], token:
     """The device's settings as its emulator should be started with (local transports only)."""
     settings = {k: v for k, v in table.items() if k != "driver"}
     url = settings.get("url")
-    if isinstance(url, str) and url.startswith("tcp://"):
-        settings["url"] = "tcp://127.0.0.1:0"  # a free local port, whatever host the real device has
+    if isinstance(url, str) and url.startswith(("tcp://", "grpc://")):
+        # a free local port, whatever host the real device (or gRPC device server) has
+        settings["url"] = url.split("://", 1)[0] + "://127.0.0.1:0"
     if "interface" in known and "channel" in known:  # a python-can bus
         settings["interface"] = "virtual"
         settings["channel"] = f"hilbench-emulate-{token}-{name}"
@@ -178,7 +180,7 @@ def _endpoints(emulator: Any) -> dict[str, Any]:
     if url.startswith("/dev/"):
         out["pty"] = url
     tcp = str(getattr(emulator, "tcp_url", "") or "") or (url if "://" in url else "")
-    if tcp.startswith(("socket://", "tcp://")):
+    if tcp.startswith(("socket://", "tcp://", "grpc://")):
         host_port = tcp.split("://", 1)[1]
         out["tcp"] = host_port
         out["port"] = int(host_port.rsplit(":", 1)[1])

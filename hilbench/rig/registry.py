@@ -26,6 +26,7 @@ BUILTIN: dict[str, str] = {
     "keyence-lk": "drivers.keyence_lk:DRIVER",
     "modbus-aio": "drivers.modbus_aio:DRIVER",
     "canopen-sensor": "drivers.canopen_sensor:DRIVER",
+    "ni-daqmx": "drivers.ni_daqmx:DRIVER",
 }
 
 

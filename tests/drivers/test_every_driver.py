@@ -19,6 +19,12 @@ from hilbench.rig.protocols import Device, DriverEntry
 
 KNOWN_ROLES = {"actuator", "sensor", "player", "lockstep"}
 SHIPPED = {"sim", "pi-gcs", "keyence-lk", "modbus-aio", "canopen-sensor"}
+try:  # ni-daqmx opens only with its optional package (pip install 'hilbench[nidaqmx]')
+    import nidaqmx  # noqa: F401
+
+    SHIPPED.add("ni-daqmx")
+except ImportError:
+    pass
 
 
 class TrivialWorld:
