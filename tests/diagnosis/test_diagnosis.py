@@ -260,8 +260,13 @@ def test_two_hidden_effects(case, auto_results):
 def test_json_document_and_untestable(auto_results):
     d = auto_results("temperature")
     doc = json.loads(json.dumps(d.to_json(), allow_nan=False))
-    assert set(doc) == {"spec", "metrics", "where", "effects", "untestable", "steps"}
+    assert set(doc) == {"spec", "metrics", "where", "effects", "untestable", "steps", "model"}
     assert set(doc["metrics"]) == {"train", "validation"}
+    # the final model's parameters with units (a batch row's, and a notebook's, `parameters`)
+    assert doc["model"]["spec"] == doc["spec"]
+    names = {p["name"] for p in doc["model"]["parameters"]["shape"] + doc["model"]["parameters"]["weights"]}
+    assert any("temperature" in n for n in names), names
+    assert all(p["unit"] for p in doc["model"]["parameters"]["weights"])
     assert doc["steps"][0]["spec"] == "pi" and doc["steps"][0]["added"] is None
     assert {"kind", "range", "share"} <= set(doc["where"][0])
     kinds = {w["kind"].split(":")[0] for w in doc["where"]}
