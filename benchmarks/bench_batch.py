@@ -16,7 +16,7 @@ stack over days, each recording ``--seconds`` long at 1 kHz, 10^5 samples at the
 
 Prints one JSON document on stdout; progress on stderr. Never fails on timing.
 
-    python benchmarks/bench_batch.py [--recordings 12] [--diagnose-recordings 6] [--seconds 100] [--model pi]
+    python benchmarks/bench_batch.py [--recordings 12] [--diagnose-recordings 12] [--seconds 100] [--model pi]
 
 Both the cheapest task (`fit -m pi`, where the engine's overhead weighs most) and a typical one
 (`diagnose -m pi`) are measured.
@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--recordings", type=int, default=12)
     ap.add_argument("--seconds", type=float, default=100.0, help="length of each recording (1 kHz)")
     ap.add_argument("--model", default="pi")
-    ap.add_argument("--diagnose-recordings", type=int, default=6,
+    ap.add_argument("--diagnose-recordings", type=int, default=12,
                     help="recordings of the second part, `batch diagnose` (0: fit only)")
     ap.add_argument("--output", default=None, help="also write the JSON here")
     a = ap.parse_args(argv)
