@@ -21,7 +21,6 @@ from hilbench.archive.engine import DaskEngine
 from hilbench.archive.results import HASHES_FILE, ResultStore
 from hilbench.archive.sources import HashCache, find_recordings
 from hilbench.archive.tasks import (
-    ALL_RUNS,
     COMMANDS,
     EACH,
     ArchiveTask,
@@ -191,4 +190,4 @@ def _rows_for(store: ResultStore, tasks: Sequence[ArchiveTask], unreadable: list
     return rows
 
 
-__all__ = ["ALL_RUNS", "BatchSummary", "plan_tasks", "run_batch"]
+__all__ = ["BatchSummary", "plan_tasks", "run_batch"]

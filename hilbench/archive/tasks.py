@@ -10,6 +10,7 @@ reason on one line; only the worker's death escapes, and the engine makes that a
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -79,8 +80,6 @@ class ArchiveTask:
 
 
 def task_key(content_hash: str, run: str, command: str, options: dict[str, Any]) -> str:
-    import hashlib
-
     text = json.dumps({"sha256": content_hash, "run": run, "command": command, "options": options,
                        "hilbench": __version__}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:32]
