@@ -147,7 +147,11 @@ class DaskEngine:
             # this process. Its statistical profiler, sampling the task's stack every 10 ms, cost most
             # of the rest (6.0 -> 5.2 s). docs/decisions/0091.
             environ["MALLOC_TRIM_THRESHOLD_"] = None
+            # worker-saturation 1.0: a worker holds only the task it runs, the rest wait at the scheduler,
+            # so a worker killed by one recording takes no other task down with it (Dask counts a death
+            # against every task the worker held)
             with dask.config.set({"distributed.scheduler.allowed-failures": self.allowed_failures,
+                                  "distributed.scheduler.worker-saturation": 1.0,
                                   "distributed.worker.daemon": True,
                                   "distributed.nanny.pre-spawn-environ": environ,
                                   "distributed.worker.profile.enabled": False}):
