@@ -132,7 +132,8 @@ class RestoringForce(Component):
                        doc="the drive between samples: foh, linear; zoh, each sample held (a DAC's staircase); "
                            "quadratic, the parabola through the last three samples (a smooth band-limited drive)"),
         "substeps": Option("int", default=8, minimum=1, maximum=200,
-                           doc="Runge-Kutta steps per sample (8 at 750 Hz: within 1e-9 of 80 on the benchmark)"),
+                           doc="Runge-Kutta steps per sample (8 at 750 Hz: ~1e-4 of the stroke from the converged "
+                               "solution; the benchmark's test errors alike from 5 to 80)"),
     }
     #: the bases whose hysteresis the kernel can put inside the mechanics
     LAWS: ClassVar[tuple[str, ...]] = ("bouc-wen",)
