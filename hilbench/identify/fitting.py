@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from hilbench.errors import DataError, UserError
-from hilbench.identify import FitReport, fit_model
+from hilbench.identify import FitReport, fit_model, health
 from hilbench.identify.dataset import Dataset, FitRun, PathLike, as_dataset, load_runs, match_runs
 from hilbench.identify.metrics import METRIC_KEYS, metrics
 from hilbench.identify.sweep import BLOCKS as SWEEP_BLOCKS
@@ -111,6 +111,8 @@ class FitResult:
     output_unit: str = "um"
     input_unit: str = ""
     notes: list[str] = field(default_factory=list)
+    #: :func:`hilbench.identify.health.check`: ``status`` ok or flagged, ``reasons``, figures
+    health: dict[str, Any] = field(default_factory=dict)
     date: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
 
     @property
@@ -172,6 +174,7 @@ class FitResult:
             "split": self.split,
             **({"scored": self.metrics["validation"]} if not self.refitted else {}),
             "units": {"input": self.input_unit, "output": self.output_unit},
+            "health": self.health,
             "notes": self.notes,
         })
 
@@ -303,9 +306,17 @@ def fit(
     overall = _score(runs, model)
     result = FitResult(model.spec, model, runs, overall, split, report=report, output_unit=y_unit,
                        input_unit=u_unit, notes=notes)
+    _flag(result)
     # what the model file keeps besides the model (Model.from_dict reads these keys back)
-    model.info = finite_json({"fitted_on": result.fitted_on, "metrics": overall, "fit": result.fit_info()})
+    model.info = finite_json({"fitted_on": result.fitted_on, "metrics": overall, "fit": result.fit_info(),
+                              "health": result.health})
     return result
+
+
+def _flag(result: FitResult) -> None:
+    """No silent blow-ups: the model's health on the runs scored, its reasons added to the notes."""
+    result.health = health.check(result.model, result.runs, result.output_unit)
+    result.notes.extend(f"model flagged: {reason}" for reason in result.health["reasons"])
 
 
 def evaluate(
@@ -342,8 +353,10 @@ def evaluate(
             notes.append(f"split: {split}")
         _validation_note(runs, notes)
     overall = _score(runs, model)
-    return FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,
-                     input_unit=u_unit, notes=notes)
+    result = FitResult(model.spec, model, runs, overall, split, loaded_from=loaded_from, output_unit=y_unit,
+                       input_unit=u_unit, notes=notes)
+    _flag(result)
+    return result
 
 
 def is_model_file(text: str) -> bool:

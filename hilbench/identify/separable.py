@@ -501,6 +501,11 @@ def fit_model(*args: Any, **kwargs: Any) -> FitReport:
     cores slowed them a hundredfold in measurements.
     """
     model = args[0] if args else kwargs["model"]
+    if model.structure is not None:  # one state equation, no weights: a search on its physical parameters
+        from hilbench.identify.restoring_force import fit_restoring_force
+
+        with threadpool_limits(limits=1, user_api="blas"):
+            return fit_restoring_force(*args, **kwargs)
     with threadpool_limits(limits=1, user_api="blas"), \
             _progress.task(f"fit {model.spec}: evaluations of the weights", total=None) as advance:
         return _fit_model(*args, on_evaluation=advance, **kwargs)

@@ -113,6 +113,9 @@ class Component:
         self.params: list[ShapeParam] = []
 
     # -- set-up --------------------------------------------------------------------------------
+    def check_spec(self, base: Component, effects: list[Component], spec: str) -> None:
+        """Refuse (:class:`hilbench.models.spec.SpecError`) a spec this component cannot be part of."""
+
     def prepare(self, signals: Signals) -> None:
         """Set data-dependent constants and shape-parameter starts from training signals."""
 

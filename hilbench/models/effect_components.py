@@ -16,6 +16,7 @@ from hilbench.errors import UserError
 from hilbench.models import kernels as MK
 from hilbench.models.components import Columns, Component, ShapeParam, Signals
 from hilbench.models.options import Option
+from hilbench.models.restoring_force import RestoringForce
 
 
 class Asymmetry(Component):
@@ -743,7 +744,7 @@ JOINT_DELAY_STARTS = 64
 
 
 EFFECTS: dict[str, type[Component]] = {
-    cls.name: cls for cls in (Asymmetry, Saturation, RateDependence, Dynamics, Creep, Delay)
+    cls.name: cls for cls in (Asymmetry, Saturation, RateDependence, Dynamics, Creep, Delay, RestoringForce)
 }
 #: the order effects are applied in, whatever the order in the spec
-EFFECT_ORDER = ("delay", "asymmetry", "saturation", "creep", "rate-dependence", "<aux>", "dynamics")
+EFFECT_ORDER = ("delay", "asymmetry", "saturation", "creep", "rate-dependence", "<aux>", "dynamics", "restoring-force")

@@ -68,6 +68,21 @@ class Model:
     def components(self) -> list[Component]:
         return [self.base, *self.effects]
 
+    @property
+    def structure(self) -> Component | None:
+        """The effect that is the whole model's state equation (``restoring-force``: the base's
+        hysteresis inside the mechanics), or None for the columns-and-weights models."""
+        return next((e for e in self.effects if getattr(e, "whole_model", False)), None)
+
+    def _searched_components(self) -> list[Component]:
+        """The components whose shape parameters define the model (a structure's alone)."""
+        return [self.structure] if self.structure is not None else self.components
+
+    def structure_output(self, run: RunData, state: dict[str, Any]) -> np.ndarray:
+        """The structure's free-run output of one run from ``state`` (updated)."""
+        nu = float(self.base.options.get("n", 1.0))
+        return self.structure.simulate(run.input, run.sample_rate_hz, nu, state)
+
     def effect(self, name: str) -> Component | None:
         return next((e for e in self.effects if e.name == name or getattr(e, "channel", None) == name), None)
 
@@ -89,11 +104,11 @@ class Model:
         return "+".join(part(c) for c in self.components)
 
     def shape_params(self) -> list[ShapeParam]:
-        return [p for c in self.components for p in c.shape()]
+        return [p for c in self._searched_components() for p in c.shape()]
 
     def set_shape(self, theta: np.ndarray) -> None:
         k = 0
-        for c in self.components:
+        for c in self._searched_components():
             n = len(c.shape())
             c.set_shape(theta[k : k + n])
             k += n
@@ -159,7 +174,7 @@ class Model:
         self.norm.setdefault("u_min", float(np.min(u)))
         self.norm.setdefault("u_max", float(np.max(u)))
         signals = self._joined_signals(runs, u)
-        for c in self.components:
+        for c in self._searched_components():
             c.prepare(signals)
             c.fix_from_options()
 
@@ -199,6 +214,9 @@ class Model:
         n = 64
         u = np.linspace(u_from, u_to, n)
         ramp = RunData(u, None, {k: np.full(n, v) for k, v in aux.items()}, self.sample_rate_hz or 1.0)
+        if self.structure is not None:
+            self.structure_output(ramp, states[self.components.index(self.structure)])
+            return
         self.static_columns(ramp, states)
 
     def _walk(self, runs: list[RunData]):
@@ -277,6 +295,8 @@ class Model:
         the delay and the dynamics on the one resulting signal (they are linear)."""
         if self.weights is None:
             raise UserError("the model has no weights yet: fit it first")
+        if self.structure is not None:
+            return self.structure_output(run, states[self.components.index(self.structure)])
         n = len(run)
         h = np.empty(n)
         u_before: float | None = None
@@ -354,7 +374,7 @@ class Model:
         model.weight_names = [w["name"] for w in weights]
         model.weights = np.array([float(w["value"]) for w in weights])
         model.info = upgrade_model_document(
-            {k: v for k, v in data.items() if k in ("fitted_on", "metrics", "fit", "train", "validation")})
+            {k: v for k, v in data.items() if k in ("fitted_on", "metrics", "fit", "train", "validation", "health")})
         return model
 
     @classmethod
@@ -418,7 +438,8 @@ class ModelStepper:
         self.fs = sample_rate_hz
         self.fallback_reason = ""
         try:
-            self.compiled = compile_model(model, sample_rate_hz)
+            self.compiled = StructureStepper(model, sample_rate_hz) if model.structure is not None \
+                else compile_model(model, sample_rate_hz)
         except NotCompilable as exc:
             self.compiled = None
             self.fallback_reason = str(exc)
@@ -479,3 +500,27 @@ class ModelStepper:
             self.zi = sps.lfilter_zi(b, a) * h
         y, self.zi = sps.lfilter(b, a, [h], zi=self.zi)
         return float(y[0])
+
+
+class StructureStepper:
+    """Step mode of a structure model (``restoring-force``): its block kernel on a one-sample block,
+    the parameter vector and buffers made once (no allocation per sample)."""
+
+    def __init__(self, model: Model, sample_rate_hz: float):
+        from hilbench.models.restoring_force import restoring_force_block
+
+        structure = model.structure
+        assert structure is not None
+        self._kernel = restoring_force_block
+        self._params = structure.kernel_params(sample_rate_hz, float(model.base.options.get("n", 1.0)))
+        self._state = structure.new_state()["x"]
+        self._u = np.zeros(1)
+        self._y = np.zeros(1)
+
+    def reset(self) -> None:
+        self._state[:] = 0.0
+
+    def step(self, u: float, aux: dict[str, float] | None = None) -> float:
+        self._u[0] = u
+        self._kernel(self._u, self._params, self._state, self._y)
+        return float(self._y[0])

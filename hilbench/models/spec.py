@@ -178,6 +178,8 @@ def build_components(spec: str, channels: list[str] | None = None) -> tuple[Comp
             effect = AuxChannel(name, check_options(name, {}, options, spec))
         effects.append(effect)
     effects.sort(key=lambda e: EFFECT_ORDER.index(e.name if e.name in EFFECTS else "<aux>"))
+    for e in effects:
+        e.check_spec(base, effects, spec)
     return base, effects
 
 
@@ -200,6 +202,8 @@ def regressor_size(base: Component, effects: list[Component]) -> tuple[int, int]
     copy of every hysteresis column so far.
     """
     name = base.name
+    if any(e.name == "restoring-force" for e in effects):
+        return 0, 6  # one state equation: its physical parameters searched, no columns
     if name == "linear":
         cols, hyst, shape = 2, 1, 0
     elif name in ("pi", "pi1", "mpi", "pmpi", "pd"):
