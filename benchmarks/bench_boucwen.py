@@ -33,7 +33,13 @@ from typing import Any
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import environment, make_tempdir, note, print_document, use_private_numba_cache  # noqa: E402
+from _common import (
+    environment,
+    make_tempdir,
+    note,
+    print_document,
+    use_private_numba_cache,
+)
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "boucwen-benchmark"
 FS = 750.0
