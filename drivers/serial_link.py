@@ -72,7 +72,8 @@ class SerialLink:
 
     def read_line(self, what: str, timeout_s: float | None = None) -> bytes:
         """The next line without its end-of-line bytes; DeviceTimeout naming ``what`` if none comes."""
-        deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
+        wait_s = self.timeout_s if timeout_s is None else float(timeout_s)
+        deadline = time.monotonic() + wait_s
         while True:
             end = self._buf.find(self.eol, self._pos)
             if end >= 0:
@@ -88,7 +89,7 @@ class SerialLink:
             if time.monotonic() >= deadline and self._buf.find(self.eol, self._pos) < 0:
                 partial = bytes(self._buf[self._pos:])
                 detail = f" (partial {short(partial)})" if partial else ""
-                raise DeviceTimeout(self.device, f"no reply to {what} within {self.timeout_s:g} s{detail}")
+                raise DeviceTimeout(self.device, f"no reply to {what} within {wait_s:g} s{detail}")
 
     def discard_input(self) -> None:
         """Drop stale bytes (a late reply after a timeout, garbage) so the next reply is the right one."""

@@ -70,10 +70,31 @@ def test_m1_replies_with_header_and_8_character_value(wire, world):
     assert wire(b"m1\r") == b"M1,-00.0120\r"  # lower case is accepted too
 
 
-def test_m0_outputs_both_outs_and_ms_is_the_lk_g5000_form(wire, world):
+def test_m0_outputs_both_outs_and_an_lk_g3000_does_not_know_ms(wire, world):
     world.u = 500.0
     assert wire(b"M0\r") == b"M0,+01.0000,+01.0000\r"
-    assert wire(b"MS,01\r") == b"MS,01,+01.0000\r"
+    assert wire(b"MS,01\r") == b"ER,MS,00\r"  # the LK-G5000 form: a command error on an LK-G3000
+
+
+def test_the_lk_g5000_has_ms_mm_ma_and_its_own_error_codes(world, request):
+    emu = DRIVER.emulator({"url": "unused", "protocol": "MS"}, world)
+    request.addfinalizer(emu.close)
+    port = serial.serial_for_url(emu.url, timeout=0.5)
+    request.addfinalizer(port.close)
+
+    def talk(command: bytes) -> bytes:
+        port.write(command)
+        return port.read_until(b"\r")
+
+    world.u = 500.0
+    assert talk(b"MS,01\r") == b"MS,01,+01.0000\r"
+    assert talk(b"MM,110000000000\r") == b"MM,110000000000,+01.0000,+01.0000\r"
+    assert talk(b"MA\r") == b"MA,+01.0000,+01.0000\r"
+    assert talk(b"M1\r") == b"ER,M1,50\r"  # command error
+    assert talk(b"MS,13\r") == b"ER,MS,62\r"  # parameter range error
+    assert talk(b"MS\r") == b"ER,MS,61\r"  # parameter count error
+    assert talk(b"Q0\r") == b"Q0\r"
+    assert talk(b"MS,01\r") == b"ER,MS,51\r"  # status error: no measuring in communication mode
 
 
 def test_over_range_is_seven_f_signed(wire, world):
@@ -121,13 +142,49 @@ def test_controller_in_um_needs_no_scaling(world, request):
 
 
 def test_lk_g5000_ms_command(world, request):
-    emu = DRIVER.emulator({"url": "unused"}, world)
+    emu = DRIVER.emulator({"url": "unused", "protocol": "MS"}, world)
     request.addfinalizer(emu.close)
     dev = DRIVER.open({"url": emu.url, "protocol": "MS", "model": "LK-G5000", "timeout_s": 0.1})
     request.addfinalizer(dev.close)
     world.u = 1.0
     assert dev.read() == {"output": pytest.approx(2.0)}
     assert ("in", b"MS,01") in emu.traffic and dev.identity() == f"Keyence LK-G5000 OUT1 at {emu.url}"
+
+
+def test_open_sends_r0_and_takes_the_status_error_of_a_controller_in_general_mode(sensor, emulator):
+    assert list(emulator.traffic)[:2] == [("in", b"R0"), ("out", b"ER,R0,01\r")]
+    assert emulator.general_mode
+
+
+def test_a_controller_left_in_communication_mode_measures_again_after_open(world, emulator, request):
+    emulator.general_mode = False  # a set-up tool sent Q0 and went away
+    dev = DRIVER.open({"url": emulator.url, "timeout_s": 0.1})
+    request.addfinalizer(dev.close)
+    world.u = 1.0
+    assert dev.read() == {"output": pytest.approx(2.0)} and emulator.general_mode
+    assert ("out", b"R0\r") in emulator.traffic
+
+
+def test_open_fails_on_another_refusal_of_r0_and_can_skip_it(emulator, request):
+    emulator.error_next("99")
+    with pytest.raises(DeviceError, match=r"R0 refused: ER code 99: other error"):
+        DRIVER.open({"url": emulator.url, "timeout_s": 0.1})
+    emulator.traffic.clear()
+    dev = DRIVER.open({"url": emulator.url, "timeout_s": 0.1, "general_mode_on_open": False})
+    request.addfinalizer(dev.close)
+    dev.read()
+    assert [data for direction, data in emulator.traffic if direction == "in"] == [b"M1"]
+
+
+def test_lk_g5000_error_codes_have_their_meanings(world, request):
+    emu = DRIVER.emulator({"url": "unused", "protocol": "MS"}, world)
+    request.addfinalizer(emu.close)
+    dev = DRIVER.open({"url": emu.url, "protocol": "MS", "timeout_s": 0.1})
+    request.addfinalizer(dev.close)
+    assert ("out", b"ER,R0,51\r") in emu.traffic  # the LK-G5000's status error, taken on open
+    emu.general_mode = False
+    with pytest.raises(DeviceError, match=r"MS,01 refused: ER code 51: status error"):
+        dev.read()
 
 
 def test_out_of_range_and_alarm_read_as_nan(sensor, world, emulator):
@@ -182,3 +239,5 @@ def test_bad_settings_are_refused():
         "key 'out' for driver 'keyence-lk': expected int, got 'one'"]
     with pytest.raises(DeviceError, match="out 3 does not exist"):
         DRIVER.open({"url": "/dev/null-not-opened", "out": 3})
+    with pytest.raises(DeviceError, match=r"out 13 does not exist on an LK-G5000 \(1..12\)"):
+        DRIVER.open({"url": "/dev/null-not-opened", "out": 13, "protocol": "MS"})
