@@ -195,6 +195,11 @@ class Compensator:
 
         if model.weights is None:
             raise UserError("the model has no weights yet: fit it first")
+        if getattr(model, "structure", None) is not None:
+            # the hysteresis inside the mechanics is one state equation: no static map to invert
+            raise UserError(f"{model.spec!r} cannot be tracked: its hysteresis sits inside the mechanics "
+                            "(restoring-force), which has no static inverse; track with a model whose "
+                            "hysteresis comes before its dynamics (e.g. bouc-wen+dynamics)")
         self.model = model
         self.fs = float(sample_rate_hz)
         lo, hi = float(limits[0]), float(limits[1])
@@ -331,6 +336,7 @@ class Compensator:
         self.preview: dict[str, Any] | None = None
         #: samples the rig was held at the run's first command for the dynamics to settle (tracking)
         self.held_before_run = 0
+        self.settle_note = ""  # set when the rig's output had not settled before the run
         nf = max(ff_num.size, ff_den.size) - 1
         ci[K.CI_FF] = nf
         if nf > 0:
@@ -728,4 +734,6 @@ class Compensator:
             doc["preview"] = self.preview
         if self.held_before_run:
             doc["held_before_run_samples"] = self.held_before_run
+        if self.settle_note:
+            doc["notes"] = [*self.notes, self.settle_note]
         return doc

@@ -283,6 +283,64 @@ def _drive(rig: Any, comp: Compensator, target: float, hold: int = 0) -> None:
     comp.precondition(applied, {k: v for k, v in measured.items() if k in comp.channels})
 
 
+#: the hold before a run: windows of this many seconds (at least SETTLE_MIN_WINDOW samples) ...
+SETTLE_WINDOW_S = 0.002
+SETTLE_MIN_WINDOW = 16
+#: ... until two windows' means differ by at most this many standard errors of the sensor's noise
+SETTLE_NOISE_SIGMAS = 4.0
+#: ... or by this fraction of the reference's span (a creeping actuator never stops)
+SETTLE_SPAN_FRACTION = 1e-3
+#: ... and at most this long (s); a rig still moving then is run anyway and said so
+SETTLE_MOST_S = 1.0
+#: the first command is re-aimed when the model's memory moved it by more than this share of the range
+SETTLE_COMMAND_FRACTION = 1e-4
+
+
+def _hold_until_settled(rig: Any, comp: Compensator, reference0: float, aux0: dict[str, float] | None,
+                        at_least: int, span: float) -> tuple[float, int, str]:
+    """Hold the rig at the command for the run's first reference sample until its *measured* output has
+    settled, and return (that command, samples held, a note when it had not settled).
+
+    The model's own settling time (``at_least`` samples) is a lower bound only: the rig's dynamics may
+    be slower or more resonant than the model's (a static model has none). Held there, a model with
+    memory (creep, temperature) keeps moving, so the command for the first sample is asked again after
+    every window and the rig moved to it when it changed: the run starts where the model, in its state
+    at that moment, puts the first sample. Settled: two consecutive windows at one command whose means
+    differ by at most SETTLE_NOISE_SIGMAS standard errors of the sensor's noise (estimated from
+    sample-to-sample differences, blind to a slow drift) or SETTLE_SPAN_FRACTION of the reference's span,
+    and whose rms about their mean is at most twice the noise plus that tolerance (no ringing left)."""
+    fs = rig.sample_rate_hz
+    window = max(SETTLE_MIN_WINDOW, int(math.ceil(SETTLE_WINDOW_S * fs)))
+    most = max(int(SETTLE_MOST_S * fs), at_least + 2 * window)
+    lo, hi = comp.limits
+    command = comp.peek(reference0, aux0)
+    _drive(rig, comp, command, hold=max(at_least, 0))
+    held = max(at_least, 0)
+    previous: float | None = None
+    while held < most:
+        aimed = comp.peek(reference0, aux0)
+        if abs(aimed - command) > SETTLE_COMMAND_FRACTION * (hi - lo):
+            command, previous = aimed, None
+            _drive(rig, comp, command)
+        applied = rig.apply(np.full(window, command))
+        measured = rig.measure(applied)
+        comp.precondition(applied, {k: v for k, v in measured.items() if k in comp.channels})
+        held += window
+        y = np.asarray(measured.get("output", np.zeros(window)), dtype=np.float64)
+        if not np.all(np.isfinite(y)):
+            return command, held, "the output read non-finite values while held before the run"
+        d = np.abs(np.diff(y))
+        noise = float(np.median(d)) / (0.6745 * math.sqrt(2.0)) if d.size else 0.0
+        mean = float(np.mean(y))
+        tol = max(SETTLE_NOISE_SIGMAS * noise * math.sqrt(2.0 / window), SETTLE_SPAN_FRACTION * span)
+        rms = float(np.sqrt(np.mean((y - mean) ** 2)))
+        if previous is not None and abs(mean - previous) <= tol and rms <= 2.0 * noise + tol:
+            return command, held, ""
+        previous = mean
+    return command, held, (f"the output was still moving after {held / fs:.3g} s held at the first command "
+                           f"({command:.6g} {rig.actuator.unit}); the run started from that transient")
+
+
 def track(
     rig: Any,
     model: Any,
@@ -351,11 +409,10 @@ def track(
         # that the model knows switches, so model and actuator memories agree; then down to the start
         _drive(rig, comp, comp.range.fitted[1])
     aux0 = _first_aux(rig, comp) if comp.channels else None
-    first = comp.peek(float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0)
-    # held there until the dynamics have settled: a run that starts while the approach still rings
-    # tracks from a transient the model's memory does not hold
-    comp.held_before_run = comp.settling_samples()
-    _drive(rig, comp, first, hold=comp.held_before_run)
+    # held at the first command until the rig has settled: a run that starts while the approach still
+    # rings (or creeps) tracks from a transient the model's memory does not hold
+    _, comp.held_before_run, comp.settle_note = _hold_until_settled(
+        rig, comp, float(ref[0]) if np.isfinite(ref[0]) else 0.0, aux0, comp.settling_samples(), span)
     if on_devices:
         from hilbench.online.tracking_devices import track_on_devices
 
