@@ -2,31 +2,35 @@
 
 Written on raw python-can frames (not canopen's ``LocalNode``, which answers SDO in every NMT state,
 checks write access only at the end of a segmented download and cannot reset communication), so an
-emulated device behaves as the standard says. What it does, with the source of each fact:
+emulated device behaves as the standard says. What it does, with the source of each fact (CiA 301's
+own text was not at hand, so no section numbers: the facts come from CiA's public pages,
+CANopenNode's ``301/`` sources and vendor manuals quoting the standard):
 
-* NMT state machine (CiA 301 7.3.2; CANopenNode ``301/CO_NMT_Heartbeat.h``): power-on and both
-  resets send the boot-up message (700h + id, one byte 00h) and enter PRE-OPERATIONAL. Commands on
-  COB-ID 000h, two data bytes (command specifier, node id; id 0 = every node): 01h start (->
-  OPERATIONAL), 02h stop (-> STOPPED), 80h enter PRE-OPERATIONAL, 81h reset node (objects
-  2000h-9FFFh and then 1000h-1FFFh back to their defaults), 82h reset communication (1000h-1FFFh
-  only). Which services each state serves (CiA's "Network management" page; vendor manuals quoting
-  CiA 301 table "NMT states and communication objects"): SDO, SYNC and EMCY in PRE-OPERATIONAL and
-  OPERATIONAL, PDO only in OPERATIONAL, in STOPPED only NMT and the heartbeat. A request the state
-  does not serve gets no answer at all (CANopenNode's SDO server ignores it; no abort code exists
-  for "stopped").
-* Heartbeat (CiA 301 7.2.8.3.2.2): every 1017h ms (0 = off) one byte on 700h + id: 04h STOPPED,
-  05h OPERATIONAL, 7Fh PRE-OPERATIONAL. A write of 1017h restarts the producer at once.
+* NMT state machine (CANopenNode ``301/CO_NMT_Heartbeat.h``, CiA's "Network management" page):
+  power-on and both resets send the boot-up message (700h + id, one byte 00h) and enter
+  PRE-OPERATIONAL. Commands on COB-ID 000h, two data bytes (command specifier, node id; id 0 = every
+  node): 01h start (-> OPERATIONAL), 02h stop (-> STOPPED), 80h enter PRE-OPERATIONAL, 81h reset
+  node (objects 2000h-9FFFh and then 1000h-1FFFh back to their defaults), 82h reset communication
+  (1000h-1FFFh only). Which services each state serves (CiA's page; vendor manuals printing CiA 301's
+  table "NMT states and communication objects", e.g. Gefran RK-5-C 6.3): SDO, SYNC and EMCY in
+  PRE-OPERATIONAL and OPERATIONAL, PDO only in OPERATIONAL, in STOPPED only NMT and the heartbeat.
+  A request the state does not serve gets no answer at all (as CANopenNode's SDO server).
+* Heartbeat (CANopenNode ``CO_NMT_internalState_t``): every 1017h ms (0 = off) one byte on
+  700h + id: 04h STOPPED, 05h OPERATIONAL, 7Fh PRE-OPERATIONAL. A write of 1017h restarts the
+  producer at once.
 * SDO server on 600h + id, answers on 580h + id, 8-byte frames only (shorter ones are ignored, as
-  CANopenNode does): expedited and segmented upload and download (CiA 301 7.2.4.3), block transfer
-  refused with 0504 0001. Abort codes (CiA 301 table "SDO abort codes", the same numbers in
-  CANopenNode ``CO_SDOserver.h`` and canopen ``sdo/exceptions.py``) in :data:`ABORT`.
+  CANopenNode does): expedited and segmented upload and download (CANopenNode ``CO_SDOserver.c``,
+  canopen ``sdo/server.py``), block transfer refused with 0504 0001. Abort codes (CiA 301 table
+  "SDO abort codes" as printed in CANopenNode ``CO_SDOserver.h``) in :data:`ABORT`.
 * SYNC (COB-ID in 1005h, default 080h) -> TPDO1 (1800h/1A00h): transmission type 0..240 sends
   after every n-th SYNC (0: every SYNC, as an acyclic PDO whose data always changed), 241..251
-  reserved, 252..255 never on SYNC. Mapping rules as CiA 301 7.5.2.36 and vendor manuals quoting it:
-  PDO invalid (1800h:01 bit 31) and 1A00h:00 = 0 before an entry changes, entries naming an object
-  that does not exist or cannot be mapped -> 0602 0000 / 0604 0041, more than 64 bits -> 0604 0042.
-* EMCY (CiA 301 7.2.7) on 1014h (080h + id): error code (UNSIGNED16), error register 1001h, five
-  manufacturer bytes; not sent in STOPPED.
+  reserved (CANopenNode ``CO_PDO.c``), 252..255 never on SYNC. Mapping rules as vendor manuals quote
+  CiA 301 (Applied Motion ST10 CANopen manual "0x1600~0x1603", Bonfiglioli CM-CAN "Mapping
+  Sequence"): PDO invalid (1800h:01 bit 31) and 1A00h:00 = 0 before an entry changes, entries naming
+  an object that does not exist or cannot be mapped -> 0602 0000 / 0604 0041, more than 64 bits ->
+  0604 0042 (CANopenNode); a PDO without mapped objects cannot be made valid (CANopenNode).
+* EMCY on 1014h (080h + id): error code (UNSIGNED16), error register 1001h, five manufacturer bytes
+  (canopen ``emcy.py``); not sent in STOPPED (CiA's page).
 
 Not verified against the text of CiA 301 (it is not public; taken from the implementations named):
 the abort for a mapping change while the PDO is valid (0800 0022 here, CANopenNode answers
@@ -67,7 +71,7 @@ ABORT = {
     "device_state": 0x08000022,  # ... because of the present device state
 }
 
-#: Heartbeat state byte per NMT state (CiA 301 7.2.8.3.2.2).
+#: Heartbeat state byte per NMT state (CANopenNode ``CO_NMT_internalState_t``, vendor manuals).
 STATE_BYTE = {"INITIALISING": 0x00, "STOPPED": 0x04, "OPERATIONAL": 0x05, "PRE-OPERATIONAL": 0x7F}
 NMT_COMMANDS = {0x01: "start", 0x02: "stop", 0x80: "pre-operational", 0x81: "reset node", 0x82: "reset communication"}
 COB_INVALID = 0x80000000  # bit 31 of a PDO COB-ID: the PDO does not exist / is not valid
@@ -188,7 +192,7 @@ class CanopenSlave:
 
     # -- NMT -------------------------------------------------------------------------------------------
     def boot(self, application: bool = False) -> None:
-        """INITIALISING (-> defaults), boot-up message, then PRE-OPERATIONAL (CiA 301 7.3.2)."""
+        """INITIALISING (-> defaults), boot-up message, then PRE-OPERATIONAL (CiA 301 NMT state machine)."""
         with self._lock:
             self.state = "INITIALISING"
             self._reset(application)

@@ -19,7 +19,7 @@ module adds the CiA 404 object dictionary and the measurement behind it:
   constant of 0 is refused (0609 0030): the manual gives the range UNSIGNED8, but 0 divides by zero.
 
 Application objects (61A0h, 61A1h) go back to their defaults on NMT reset node, not on reset
-communication (CiA 301 7.3.2: reset application covers 2000h-9FFFh).
+communication (CiA's "Network management" page: reset application covers 2000h-9FFFh).
 
 Process values come from ``world.read(quantity)`` converted back through the driver table's
 ``scale``/``offset`` (PV = (value - offset) / scale). An integer PV that does not fit its type is

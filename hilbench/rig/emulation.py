@@ -181,7 +181,7 @@ def _shared_can_bus() -> dict[str, Any]:
                 probe.bind(("", 0))
                 port = int(probe.getsockname()[1])
             can.Bus(interface="udp_multicast", channel=group, port=port).shutdown()
-        except (OSError, can.CanError, ImportError) as exc:
+        except (OSError, ValueError, can.CanError, ImportError) as exc:
             problems.append(f"{group}: {exc}")
             continue
         return {"interface": "udp_multicast", "channel": group, "port": port}

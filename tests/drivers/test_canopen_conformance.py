@@ -4,12 +4,13 @@ The master here speaks raw python-can frames on a virtual bus (not hilbench's dr
 ``canopen`` package), so it checks the emulator against the standard rather than against the code
 that talks to it. What it expects comes from:
 
-* CiA 301 (CANopen application layer): NMT state machine and which services each state serves
-  (7.3.2, and CiA's "Network management" page: SDO not in STOPPED, PDO only in OPERATIONAL), NMT
-  commands 01h/02h/80h/81h/82h, boot-up message (700h + id, 00h), heartbeat state bytes 04h/05h/7Fh
-  and period 1017h (7.2.8.3.2.2), SDO expedited and segmented transfer (7.2.4.3), the SDO abort
-  codes (table "SDO abort codes"; the same numbers in CANopenNode ``301/CO_SDOserver.h``),
-  PDO mapping procedure (7.5.2.36, as quoted in vendor manuals), EMCY frame (7.2.7);
+* CiA 301 (CANopen application layer), read through CiA's public "Network management" page,
+  CANopenNode's ``301/`` sources and vendor manuals quoting it (section numbers are not given: the
+  standard's text was not at hand): the NMT state machine and which services each state serves
+  (SDO not in STOPPED, PDO only in OPERATIONAL), NMT commands 01h/02h/80h/81h/82h, boot-up message
+  (700h + id, 00h), heartbeat state bytes 04h/05h/7Fh and period 1017h, SDO expedited and segmented
+  transfer, the SDO abort codes (the same numbers in CANopenNode ``301/CO_SDOserver.h`` and canopen
+  ``sdo/exceptions.py``), the PDO mapping procedure, the EMCY frame;
 * CiA 404 (measuring devices): device type 1000h = 0002_0194h (analogue input block, profile 404;
   Axiomatic AX030541 manual 3.2.1), AI PV 6130h/7130h/9130h, AI status 6150h bits 0/1/2 (esd
   CAN-CBX-Pt100 manual 8.10.9), AI filter 61A0h/61A1h (Axiomatic AX030301 manual 3.3.17-18).
@@ -150,7 +151,7 @@ class Master:
     def _answer(self, request: bytes) -> bytes:
         reply = self.sdo(request)
         assert reply is not None, f"no SDO answer to {request.hex(' ')}"
-        assert len(reply) == 8, f"SDO answers are 8 bytes (CiA 301 7.2.4.3), got {reply.hex(' ')}"
+        assert len(reply) == 8, f"SDO answers are 8 bytes (CiA 301 SDO protocols), got {reply.hex(' ')}"
         if reply[0] == 0x80:
             assert reply[1:4] == request[1:4], "an abort names the index and sub-index of the transfer"
             raise Aborted(int.from_bytes(reply[4:8], "little"))
