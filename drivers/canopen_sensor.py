@@ -57,6 +57,16 @@ COB_INVALID = 0x80000000  # bit 31 of a PDO COB-ID: PDO does not exist / not val
 QUANTITIES = {"output": "um", "temperature": "degC"}
 
 
+def bus_options(interface: str, port: int) -> dict[str, Any]:
+    """Extra python-can bus arguments: the UDP port of a ``udp_multicast`` bus (0: python-can's default).
+
+    On Linux a multicast socket receives every group joined on its port (``IP_MULTICAST_ALL``), so
+    two udp_multicast buses are kept apart by their port, not by their group address (channel)."""
+    if port and interface != "udp_multicast":
+        raise ValueError(f"port = {port}: only the udp_multicast interface has a port (interface is {interface!r})")
+    return {"port": port} if port else {}
+
+
 def mapping_entry(index: int, subindex: int, bits: int) -> int:
     """A PDO mapping entry (CiA 301): index in bits 31..16, subindex 15..8, length in bits 7..0."""
     return (index << 16) | (subindex << 8) | bits
@@ -108,8 +118,12 @@ class CanopenSensor:
         self.network = canopen.Network()
         # The receive thread polls the bus this often; close() waits up to one cycle for it.
         self.network.NOTIFIER_CYCLE = 0.05
+        try:
+            options = bus_options(str(settings["interface"]), int(settings.get("port") or 0))
+        except ValueError as exc:
+            raise DeviceError(self.name, str(exc)) from None
         self.network.connect(interface=str(settings["interface"]), channel=settings["channel"],
-                             bitrate=int(settings["bitrate"]))
+                             bitrate=int(settings["bitrate"]), **options)
         try:
             self.node = canopen.RemoteNode(self.node_id, canopen.ObjectDictionary())
             self.network.add_node(self.node)
@@ -330,9 +344,10 @@ def open_device(settings: dict[str, Any]) -> CanopenSensor:
 
 
 SETTINGS = (
-    Setting("interface", str, default="virtual", doc="python-can interface (virtual, socketcan, pcan, ...)"),
-    Setting("channel", str, default="hilbench", doc="python-can channel (virtual: any shared name; socketcan: can0)"),
+    Setting("interface", str, default="virtual", doc="python-can interface (virtual, socketcan, pcan, udp_multicast, ...)"),
+    Setting("channel", str, default="hilbench", doc="python-can channel (virtual: any shared name; socketcan: can0; udp_multicast: a group address)"),
     Setting("bitrate", int, default=500000, doc="bit/s"),
+    Setting("port", int, default=0, doc="udp_multicast interface only: UDP port (0 = python-can's default 43113)"),
     Setting("node_id", int, required=True, doc="CANopen node id, 1..127"),
     Setting("quantity", str, default="output", doc="'output' (displacement, um) or 'temperature' (degC)"),
     Setting("pv_index", int, default=0x6130, doc="CiA 404 AI PV object: 0x6130 REAL32, 0x7130 INTEGER16, 0x9130 INTEGER32"),

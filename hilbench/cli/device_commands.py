@@ -165,7 +165,7 @@ def emulate(
     ),
     dry_run: bool = typer.Option(
         False, "--dry-run", help="Play the config's plan (or --excitation) through the real drivers against the "
-        "emulators in this process, record it, then stop (works for python-can virtual buses too).",
+        "emulators in this process, record it, then stop (CANopen devices on a python-can virtual bus).",
     ),
     excitation: list[str] = typer.Option(
         [], "--excitation", "-e", metavar="KIND:KEY=VALUE,...", help="With --dry-run: runs in compact form. Repeatable.",
@@ -181,12 +181,11 @@ def emulate(
     """Start the emulators of a real-rig config's devices and print the settings that reach them.
 
     Each [devices.NAME] table gets its driver's emulator speaking the real protocol (a pty or a
-    127.0.0.1 socket for serial, a Modbus server on 127.0.0.1, a python-can virtual bus), all backed
-    by one simulated plant from the config's [plant]. Put the printed url (or interface/channel) in
-    the device tables and dry-run the config with `hilbench sweep CONFIG` from another shell while
-    this runs (until Ctrl-C or --seconds), or let --write-config OUT.toml write that config for
-    you; a python-can virtual bus reaches no other process, so such a rig is dry-run in this one
-    with --dry-run.
+    127.0.0.1 socket for serial, a Modbus server on 127.0.0.1, a python-can udp_multicast bus that
+    stays on this machine), all backed by one simulated plant from the config's [plant]. Put the
+    printed url (or interface/channel/port) in the device tables and dry-run the config with
+    `hilbench sweep CONFIG` from another shell while this runs (until Ctrl-C or --seconds), or let
+    --write-config OUT.toml write that config for you; --dry-run instead plays it in this process.
     """
     from hilbench.rig.config import load_rig
 
@@ -200,7 +199,7 @@ def emulate(
         raise UserError("--excitation and --output go with --dry-run", where="command line")
     from hilbench.rig.emulation import start_emulators
 
-    emulated = start_emulators(rig_config)
+    emulated = start_emulators(rig_config, shared_can=not dry_run)
     try:
         document = {"config": rig_config.path, **_describe(emulated, rig_config), "host": "127.0.0.1"}
         if write_config is not None:

@@ -17,7 +17,12 @@ third-party driver with an emulator works the same way):
   a driver with a ``tcp_port`` setting (a line-protocol emulator) serves its pty and 127.0.0.1 TCP
   on a free port, and a configured ``socket://`` url is pointed at the TCP one;
 * ``interface``/``channel`` (python-can): the ``virtual`` interface on a channel of its own, so two
-  emulated rigs never share a bus.
+  emulated rigs never share a bus; with ``shared_can=True`` (``hilbench emulate`` without
+  ``--dry-run``) python-can's ``udp_multicast`` interface instead, which other processes on this
+  machine reach: an IPv6 interface-local group (``ff11::``, never sent on a wire, RFC 4291 2.7) or,
+  without IPv6, the administratively scoped IPv4 group 239.255.72.66 with TTL 1 (the local subnet),
+  and a free UDP ``port`` of its own (Linux delivers every group joined on a port to every socket on
+  that port, so the port, not the group, keeps two rigs apart).
 
 Limits: the world gives physical values (um, A, degC), so the rig-level ``scale``/``offset`` of a
 ``[[sensors]]`` table should be 1/0 in a config meant for emulation (driver-level scales, such as
@@ -158,7 +163,34 @@ def build_world(config: RigConfig) -> SimWorld:
     return SimWorld(sim.plant, rest=config.actuator.rest)
 
 
-def _emulator_settings(name: str, table: dict[str, Any], known: set[str], token: str) -> dict[str, Any]:
+#: udp_multicast groups tried in order: IPv6 interface-local (stays on this host), then IPv4 site-local
+UDP_MULTICAST_GROUPS = ("ff11::6869:6c62", "239.255.72.66")
+
+
+def _shared_can_bus() -> dict[str, Any]:
+    """A python-can ``udp_multicast`` channel and free port that this machine can open, for one rig."""
+    import socket
+
+    import can
+
+    problems = []
+    for group in UDP_MULTICAST_GROUPS:
+        family = socket.AF_INET6 if ":" in group else socket.AF_INET
+        try:
+            with socket.socket(family, socket.SOCK_DGRAM) as probe:  # a UDP port nobody is bound to
+                probe.bind(("", 0))
+                port = int(probe.getsockname()[1])
+            can.Bus(interface="udp_multicast", channel=group, port=port).shutdown()
+        except (OSError, ValueError, can.CanError, ImportError) as exc:
+            problems.append(f"{group}: {exc}")
+            continue
+        return {"interface": "udp_multicast", "channel": group, "port": port}
+    raise ConfigError("no python-can udp_multicast bus can be opened here (" + "; ".join(problems) + ")",
+                      hint="use --dry-run: it serves CANopen devices on a virtual bus in one process")
+
+
+def _emulator_settings(name: str, table: dict[str, Any], known: set[str], token: str,
+                       shared_can: dict[str, Any] | None = None) -> dict[str, Any]:
     """The device's settings as its emulator should be started with (local transports only)."""
     settings = {k: v for k, v in table.items() if k != "driver"}
     url = settings.get("url")
@@ -166,8 +198,12 @@ def _emulator_settings(name: str, table: dict[str, Any], known: set[str], token:
         # a free local port, whatever host the real device (or gRPC device server) has
         settings["url"] = url.split("://", 1)[0] + "://127.0.0.1:0"
     if "interface" in known and "channel" in known:  # a python-can bus
-        settings["interface"] = "virtual"
-        settings["channel"] = f"hilbench-emulate-{token}-{name}"
+        settings.pop("port", None)
+        if shared_can is not None and "port" in known:
+            settings.update(shared_can)
+        else:
+            settings["interface"] = "virtual"
+            settings["channel"] = f"hilbench-emulate-{token}-{name}"
     if "tcp_port" in known and settings.get("tcp_port") is None:
         settings["tcp_port"] = 0  # the pty and a free local TCP port: the config may name either
     return settings
@@ -187,8 +223,11 @@ def _endpoints(emulator: Any) -> dict[str, Any]:
     return out
 
 
-def start_emulators(config: RigConfig) -> EmulatedRig:
+def start_emulators(config: RigConfig, shared_can: bool = False) -> EmulatedRig:
     """Start the emulator of every device of ``config`` on one simulated plant.
+
+    ``shared_can``: serve python-can devices on a ``udp_multicast`` bus that other processes reach
+    (one per device), not on an in-process virtual bus.
 
     Raises :class:`~hilbench.errors.ConfigError` when the config has no ``[plant]``, or names a
     driver without an emulator; emulators already started are closed again on any failure.
@@ -206,7 +245,9 @@ def start_emulators(config: RigConfig) -> EmulatedRig:
             if start is None:
                 raise ConfigError(f"[devices.{name}] driver {table['driver']!r} has no emulator", where=config.path)
             known = {s.name for s in getattr(driver, "settings", ())} or set(table)
-            settings = _emulator_settings(name, table, known, token)
+            settings = _emulator_settings(name, table, known, token,
+                                          _shared_can_bus() if shared_can and {"interface", "channel", "port"} <= known
+                                          else None)
             try:
                 emulator = start(settings, world)
             except ValueError as exc:  # an emulator refusing a setting names the key and value
@@ -218,8 +259,12 @@ def start_emulators(config: RigConfig) -> EmulatedRig:
                 tcp_url = getattr(emulator, "tcp_url", None)
                 point["url"] = str(tcp_url if configured.startswith("socket://") and tcp_url else emulator.url)
             rig.endpoints[name] = _endpoints(emulator)
-            if str(settings.get("interface")) == "virtual" and "interface" in known and "channel" in known:
+            if "interface" in known and "channel" in known:
                 point["interface"], point["channel"] = settings["interface"], settings["channel"]
+                if "port" in settings:
+                    point["port"] = settings["port"]
+                elif "port" in table:  # a udp_multicast port of the real bus means nothing on a virtual one
+                    point["port"] = 0
             rig.settings[name] = point
     except BaseException:
         rig.close()

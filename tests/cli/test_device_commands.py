@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 
 from hilbench.cli import app
 from hilbench.rig import registry
+from hilbench.rig.emulation import UDP_MULTICAST_GROUPS
 
 REPO = Path(__file__).resolve().parents[2]
 def _drivers_installed(template: Path) -> bool:
@@ -122,8 +123,9 @@ def test_emulate_prints_where_every_device_of_a_template_listens(template):
             assert point["tcp"] == url.split("://")[1] and point["port"] == int(url.rsplit(":", 1)[1])
         elif "url" in point:
             assert url.startswith("/dev/") and point["pty"] == url  # a pty
-        else:
-            assert point["interface"] == "virtual"
+        else:  # a python-can bus other processes on this machine reach, on a UDP port of its own
+            assert point["interface"] == "udp_multicast" and point["port"] > 0
+            assert point["channel"] in UDP_MULTICAST_GROUPS
         if point["driver"] == "pi-gcs":  # a line-protocol emulator: its pty AND its TCP port, both printed
             assert point["pty"].startswith("/dev/") and point["tcp"].startswith("127.0.0.1:")
             assert point["port"] == int(point["tcp"].rsplit(":", 1)[1]) > 0
@@ -157,16 +159,7 @@ BLOCK_PLANS = {PI_TEMPLATE: "sine:amplitude=2,offset=5,frequency_hz=5,cycles=2",
                NI_TEMPLATE: "sine:amplitude=1,offset=1.5,frequency_hz=5,cycles=2"}
 
 
-def _reaches_other_processes(template: Path) -> bool:
-    from hilbench.rig.config import load_rig
-
-    return all("url" in table for table in load_rig(template).devices.values())  # no python-can virtual bus
-
-
-CROSS_PROCESS = [t for t in TEMPLATES if _reaches_other_processes(t)]
-
-
-@pytest.mark.parametrize("template", CROSS_PROCESS, ids=[t.stem for t in CROSS_PROCESS])
+@pytest.mark.parametrize("template", TEMPLATES, ids=[t.stem for t in TEMPLATES])
 def test_a_template_through_emulate_write_config_passes_sweep_check_and_sweeps(template, tmp_path):
     """`hilbench emulate T --write-config OUT` in one process, `hilbench sweep OUT` in another, as a
     user dry-runs a real-rig template: nothing copied by hand."""
@@ -183,7 +176,9 @@ def test_a_template_through_emulate_write_config_passes_sweep_check_and_sweeps(t
 
         config = load_rig(written)
         for table in config.devices.values():
-            if table["url"].startswith(("socket://", "tcp://", "grpc://")):
+            if "url" not in table:  # CANopen: a udp_multicast bus of its own, reachable from this process
+                assert table["interface"] == "udp_multicast" and table["port"] > 0
+            elif table["url"].startswith(("socket://", "tcp://", "grpc://")):
                 assert table["url"].split("://")[1].startswith("127.0.0.1:")
             else:
                 assert table["url"].startswith("/dev/")
@@ -216,8 +211,8 @@ def test_a_template_through_emulate_write_config_passes_sweep_check_and_sweeps(t
     assert set(document["devices"]) == set(load_rig(template).devices)
 
 
-def test_the_pi_template_is_among_them():
-    assert PI_TEMPLATE in CROSS_PROCESS
+def test_the_pi_and_the_canopen_templates_are_among_them():
+    assert PI_TEMPLATE in TEMPLATES and REPO / "configs" / "templates" / "gmm-modbus-canopen.toml" in TEMPLATES
 
 
 def test_write_config_keeps_the_file_and_changes_only_what_reaches_the_emulators(tmp_path):

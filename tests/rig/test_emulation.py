@@ -132,3 +132,28 @@ def test_write_config_overrides_a_base_table_and_makes_a_local_extends_absolute(
     written = load_rig(out)
     assert written.devices["aio"]["url"] == emu.settings["aio"]["url"] and written.devices["aio"]["unit_id"] == 1
     assert written.devices["laser"]["baud"] == 38400 and written.devices["laser"]["url"].startswith("/dev/")
+
+
+def test_a_shared_can_bus_reaches_a_driver_opened_like_another_process_would(monkeypatch):
+    """shared_can: the CANopen node on udp_multicast (group and port of its own), read by a fresh driver."""
+    from drivers.canopen_sensor import DRIVER
+    from hilbench.rig import emulation
+
+    emu = start_emulators(load_rig(CANOPEN), shared_can=True)
+    try:
+        point = emu.settings["lvdt"]
+        assert point["interface"] == "udp_multicast" and point["channel"] == emulation.UDP_MULTICAST_GROUPS[0]
+        emu.world.command(0.0)
+        device = DRIVER.open({**emu.config.devices["lvdt"], **point})
+        try:
+            assert set(device.read()) == {"output"}
+        finally:
+            device.close()
+    finally:
+        emu.close()
+    # a host where the IPv6 group cannot be opened falls back to IPv4; where none opens, one line says so
+    monkeypatch.setattr(emulation, "UDP_MULTICAST_GROUPS", ("not-a-group", "239.255.72.66"))
+    assert emulation._shared_can_bus()["channel"] == "239.255.72.66"
+    monkeypatch.setattr(emulation, "UDP_MULTICAST_GROUPS", ("not-a-group",))
+    with pytest.raises(ConfigError, match="no python-can udp_multicast bus can be opened here"):
+        emulation._shared_can_bus()
