@@ -17,8 +17,9 @@ Per rig, in a temp folder, the bench engineer's chain:
 3. that spec is fitted (``hilbench.identify.fitting.fit``, what ``hilbench fit`` does; default split:
    the last 30 % of every run validates); the model's validation ``erms_pct`` is the yardstick;
 4. the references of :func:`tracking_cases.references` (sine, triangle, multi-tone, steps,
-   attenuated triangle, each spanning 40-90 % of the recorded output range, and a triangle spanning
-   twice that range) are tracked with ``hilbench.online.tracking.track(rig, model, reference)``,
+   attenuated triangle, each spanning 40-90 % of the output range the plant holds quasi-statically
+   over its command range, ``tracking_cases.quasi_static_range``, and a triangle spanning twice that
+   range; the range the sweep recorded is kept too, but it holds the overshoot where fast runs start) are tracked with ``hilbench.online.tracking.track(rig, model, reference)``,
    feed-forward alone (``feedback=None``) and with feedback (``feedback=True``), each on a freshly
    opened rig.
 
@@ -182,6 +183,11 @@ def run_case(seed: int, folder: str) -> dict[str, Any]:
         out.update(sweep_runs=len(ys), sweep_samples=int(sum(v.size for v in ys)), output_range_um=[y_lo, y_hi],
                    sweep_s=time.perf_counter() - t1)
 
+        # what a reference may ask for: the plant's quasi-static range (the recorded one also holds
+        # the overshoot of fast runs' starts)
+        reach_lo, reach_hi = TC.quasi_static_range(str(rig_path), d)
+        out["quasi_static_range_um"] = [reach_lo, reach_hi]
+
         stage = "diagnose"
         from hilbench.diagnosis.diagnose import diagnose
 
@@ -206,7 +212,7 @@ def run_case(seed: int, folder: str) -> dict[str, Any]:
         stage = "track"
         t1 = time.perf_counter()
         tracks = []
-        for ref in TC.references(d, y_lo, y_hi):
+        for ref in TC.references(d, reach_lo, reach_hi):
             row: dict[str, Any] = {"kind": ref["kind"], "reachable": ref["reachable"], "share": ref["share"],
                                    "range_um": [ref["low"], ref["high"]], "reference": ref["compact"]}
             ff = _track_one(rig_path, fr.model, ref["compact"], None)

@@ -31,7 +31,8 @@ Each rig draws, from its seed alone (nothing here knows the compensator or the d
   top rate, more when it is bounded 3x below it at a high sample rate), the steps add up to 3/8;
 * the **references** (:func:`references`): sine, triangle, multi-tone, steps and attenuated
   triangle at drive rates inside the characterised band, each spanning a drawn share (40-90 %) of
-  the output range the sweep recorded, and one triangle beyond reach (twice the recorded range).
+  the output range the plant holds quasi-statically (:func:`quasi_static_range`), and one triangle
+  beyond reach (twice that range).
 """
 
 from __future__ import annotations
@@ -326,6 +327,33 @@ def _reference_draws(rng: np.random.Generator, d: RigDraw) -> list[dict[str, Any
         out.append(r)
     out.append({"kind": "beyond-reach", "share": BEYOND, "position": 0.5, "frequency_hz": _r(f_qs, 4), "cycles": 2})
     return out
+
+
+#: the quasi-static range: a full-range triangle at the plan's quasi-static rate, this many cycles
+#: (the last one read), its output smoothed over this share of a cycle (the sensor's noise)
+REACH_CYCLES = 2
+REACH_SMOOTHING = 0.005
+
+
+def quasi_static_range(rig_path: str, d: RigDraw) -> tuple[float, float]:
+    """The output range (um) the plant holds quasi-statically over its whole command range: a slow
+    full-range triangle on a freshly opened rig (as every tracking run opens one), the last cycle's
+    output smoothed against the sensor's noise. What a reference can ask for; the range a sweep
+    records also holds the overshoot where a fast run starts and noise peaks, which no reference can
+    be held at."""
+    from hilbench.rig.config import load_rig
+    from hilbench.rig.rig import Rig
+
+    cfg = load_rig(rig_path)
+    with Rig(cfg) as rig:
+        half = max(8, int(round(0.5 * rig.sample_rate_hz / d.drive_hz[0])))
+        up, down = np.linspace(d.lo, d.hi, half), np.linspace(d.hi, d.lo, half)
+        start = np.linspace(rig.last_applied, d.lo, half)
+        u = np.concatenate([start, *([up, down] * REACH_CYCLES)])
+        y = rig.measure(rig.apply(u))["output"][-2 * half:]
+    k = max(3, int(REACH_SMOOTHING * 2 * half))
+    ys = np.convolve(y[np.isfinite(y)], np.ones(k) / k, mode="valid")
+    return float(ys.min()), float(ys.max())
 
 
 def references(d: RigDraw, y_lo: float, y_hi: float) -> list[dict[str, Any]]:

@@ -54,3 +54,29 @@ def test_fifty_drawn_rigs_load_and_respect_their_ranges(tmp_path: Path) -> None:
             assert r["low"] - 1e-4 <= x.min() and x.max() <= r["high"] + 1e-4, f"seed {seed}: {r['compact']}"
     assert families == {"play", "one-sided-play", "m-play", "duhem"}
     assert units == {"V", "A"} and polarities == {"bipolar", "unipolar"}
+
+
+def test_the_quasi_static_range_lies_inside_what_a_sweep_records(tmp_path: Path) -> None:
+    """The references' range is what the plant holds on a slow full-range triangle: inside the range
+    the rig's sweep records (which also holds the overshoot where fast runs start) give or take the
+    sensor's noise (a lightly damped rig's sweep overshoots to twice it), and far wider than the noise."""
+    import numpy as np
+
+    from hilbench.recording.hdf5 import Recording
+    from hilbench.rig.rig import Rig
+    from hilbench.runners.sweep import run_plan
+
+    for seed in (0, 2, 5):
+        d = TC.draw(seed)
+        path = tmp_path / f"rig-{seed}.toml"
+        path.write_text(d.toml, encoding="utf-8")
+        rig = load_rig(path)
+        with Rig(rig) as opened:
+            run_plan(opened, expand_runs(rig.plan, file=str(path)), tmp_path / f"sweep-{seed}.h5")
+        y = np.concatenate([run.channel("output") for run in Recording(tmp_path / f"sweep-{seed}.h5")])
+        lo, hi = float(np.nanmin(y)), float(np.nanmax(y))
+        q_lo, q_hi = TC.quasi_static_range(str(path), d)
+        assert q_lo < q_hi
+        slack = 3.0 * d.noise_std_um
+        assert lo - slack <= q_lo and q_hi <= hi + slack, f"seed {seed}: [{q_lo}, {q_hi}] in [{lo}, {hi}]"
+        assert q_hi - q_lo >= 20.0 * d.noise_std_um, f"seed {seed}: [{q_lo}, {q_hi}]"
