@@ -184,9 +184,11 @@ def test_an_exception_response_is_a_one_line_device_error(make_rig: Callable[...
 
 def test_a_register_the_module_lacks_answers_illegal_data_address(make_rig: Callable[..., Rig]) -> None:
     emulator, device, _ = make_rig()
-    device.ai_regs = {"current": 0, "output": 3}  # a map that does not fit this module: 0..3, 2 is absent
+    # A map that does not fit the ADAM-6024: 40001..40008, but 40007 and 40008 are not in its table
+    device.ai_regs = {"current": 0, "output": 7}
     with pytest.raises(DeviceError, match="function 03 .*code 2 ILLEGAL DATA ADDRESS"):
         device.read()
+    assert requests(emulator) == [bytes.fromhex("0001 0000 0006 01 03 0000 0008")]
     assert replies(emulator) == [bytes.fromhex("0001 0000 0003 01 83 02")]
 
 
