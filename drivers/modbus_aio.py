@@ -16,8 +16,9 @@ read/write), AI status at 40021..40026. The AO is 12 bit, 0..4095 over 0..10 V; 
 is 16 bit offset binary, 0..65535 over -10..+10 V. Every address and range is a setting, so another
 module with a different map needs only a different driver table.
 
-Errors: a request without a valid reply in ``timeout_s`` is retried with back-off
-(:func:`drivers.base.retry`) and then raises :class:`DeviceTimeout`; a Modbus exception response
+Errors: a request without a valid reply in ``timeout_s`` (none, or bytes that are not a Modbus
+reply, which the message shows) is retried with back-off (:func:`drivers.base.retry`) and then
+raises :class:`DeviceTimeout`; a Modbus exception response
 raises :class:`DeviceError` naming the function and the exception code's meaning; a refused or
 closed connection raises :class:`DeviceLost` naming the device.
 """
@@ -158,13 +159,15 @@ class ModbusAIO:
         self.last_a: float | None = None  # what the AO really holds (after clamping and quantising)
         self.clamped_writes = 0
 
+        self._heard = b""  # what came back for the request in flight (to name a reply that is not Modbus)
         kind, host, port = parse_url(self.url)
         # retries=0: pymodbus would resend silently; base.retry does it visibly, with back-off.
         if kind == "tcp":
-            self.client = ModbusTcpClient(host, port=port, timeout=self.timeout_s, retries=0)
+            self.client = ModbusTcpClient(host, port=port, timeout=self.timeout_s, retries=0,
+                                          trace_packet=self._trace)
         else:
             self.client = ModbusSerialClient(host, framer=FramerType.RTU, baudrate=int(settings["baudrate"]),
-                                             timeout=self.timeout_s, retries=0)
+                                             timeout=self.timeout_s, retries=0, trace_packet=self._trace)
         self._unit_kw = _device_kw(self.client.read_holding_registers)
         if not self.client.connect():
             raise DeviceLost(self.name, f"cannot connect to {self.url}")
@@ -180,6 +183,9 @@ class ModbusAIO:
             except ConnectionException as exc:
                 raise DeviceLost(self.name, f"{what}: connection lost ({exc})") from exc
             except ModbusIOException as exc:
+                if self._heard:  # bytes came back, but no Modbus reply could be read from them
+                    raise DeviceTimeout(self.name, f"{what}: a reply that is not Modbus "
+                                                   f"({len(self._heard)} bytes: {self._heard[:16].hex(' ')})") from exc
                 if self.client.connected or self._reachable():
                     raise DeviceTimeout(self.name, f"{what}: no reply within {self.timeout_s} s") from exc
                 raise DeviceLost(self.name, f"{what}: connection closed by the device ({exc})") from exc
@@ -188,6 +194,11 @@ class ModbusAIO:
             return reply
 
         return retry(once, device=self.name, what=what, attempts=self.attempts, backoff_s=0.02)
+
+    def _trace(self, sending: bool, data: bytes) -> bytes:
+        """pymodbus's packet hook: a request clears what was heard; received bytes accumulate."""
+        self._heard = b"" if sending else bytes(data)
+        return data
 
     def _reachable(self) -> bool:
         """After a failed request: can the transport be opened again (else the device is gone)?"""

@@ -170,6 +170,32 @@ def test_no_reply_after_the_retries_raises_device_timeout(make_rig: Callable[...
     assert len(requests(emulator)) == 3
 
 
+def test_a_reply_that_is_not_modbus_is_retried_and_the_read_succeeds(make_rig: Callable[..., Rig]) -> None:
+    emulator, device, world = make_rig(attempts=3)
+    world.fixed = {"current": 0.25, "output": 0.0}
+    emulator.garbage_replies(1)  # e.g. another service answering on the module's port
+    assert device.read()["current"] == pytest.approx(0.25, abs=1e-3)
+    assert replies(emulator)[0] == b"HTTP/1.1 400 Bad Request\r\n\r\n"
+    assert len(requests(emulator)) == 2  # the garbled one and the one answered
+
+
+@pytest.mark.parametrize("garbage", [
+    b"HTTP/1.1 400 Bad Request\r\n\r\n",  # not even an MBAP header (protocol id 0x5450)
+    bytes.fromhex("0001 0000 0006 01 03 04 00"),  # an MBAP header, then a reply cut short
+    bytes.fromhex("0001 0000 0002 01 99"),  # an exception function without its code
+], ids=["text", "truncated", "no-exception-code"])
+def test_replies_that_are_never_modbus_raise_device_timeout_showing_the_bytes(
+        make_rig: Callable[..., Rig], garbage: bytes) -> None:
+    emulator, device, _ = make_rig(attempts=2, timeout_s=0.1)
+    emulator.garbage_replies(2, garbage)
+    with pytest.raises(DeviceTimeout, match=r"no valid answer after 2 tries \(.*a reply that is not Modbus") as info:
+        device.write(0.1)
+    assert garbage[:4].hex(" ") in str(info.value) and "\n" not in str(info.value)
+    assert len(requests(emulator)) == 2
+    device.write(0.2)  # the connection is usable again once the module answers properly
+    assert emulator.last_ao == pytest.approx(0.2, abs=AO_LSB_A)
+
+
 def test_an_exception_response_is_a_one_line_device_error(make_rig: Callable[..., Rig]) -> None:
     emulator, device, _ = make_rig()
     emulator.exception_next(4)
@@ -184,9 +210,11 @@ def test_an_exception_response_is_a_one_line_device_error(make_rig: Callable[...
 
 def test_a_register_the_module_lacks_answers_illegal_data_address(make_rig: Callable[..., Rig]) -> None:
     emulator, device, _ = make_rig()
-    device.ai_regs = {"current": 0, "output": 3}  # a map that does not fit this module: 0..3, 2 is absent
+    # A map that does not fit the ADAM-6024: 40001..40008, but 40007 and 40008 are not in its table
+    device.ai_regs = {"current": 0, "output": 7}
     with pytest.raises(DeviceError, match="function 03 .*code 2 ILLEGAL DATA ADDRESS"):
         device.read()
+    assert requests(emulator) == [bytes.fromhex("0001 0000 0006 01 03 0000 0008")]
     assert replies(emulator) == [bytes.fromhex("0001 0000 0003 01 83 02")]
 
 
