@@ -115,7 +115,8 @@ P_SHAPE_S = 18  # the drive's knee (form=hammerstein), normalised input
 P_SHAPE_P = 19  # its sharpness
 P_SHAPE_NORM = 20  # k(1 / s): the shaped drive is k(v / s) / k(1 / s)
 P_SAT_HSCALE = 21  # the reference's largest |h| on training (form=wiener), um
-N_P = 22
+P_RATE_LAG = 22  # 1: the rate terms read the input rate so far (a compensator's copy, see model_step)
+N_P = 23
 
 # -- state: scalar part of X ------------------------------------------------------------------------------
 X_STARTED = 0
@@ -123,7 +124,11 @@ X_V_PREV = 1
 X_Z = 2  # Duhem w or Bouc-Wen z
 X_U_PREV = 3  # previous raw input (Duhem, Bouc-Wen)
 X_BUF_IDX = 4
-N_X = 5
+X_VDOT_PREV = 5  # the input rate so far (1/s, normalised input; P_RATE_LAG)
+N_X = 6
+#: the rate so far, with P_RATE_LAG: a first-order low-pass of the input rate with this time constant
+#: (s; at least one sample), far quicker than any drive whose rate the rate terms describe
+RATE_LAG_S = 1e-3
 
 
 class NotCompilable(Exception):
@@ -148,6 +153,15 @@ def model_step(I: np.ndarray, P: np.ndarray, X: np.ndarray, u: float, aux: np.nd
     first = X[X_STARTED] == 0.0
     vdot = 0.0 if first else (v - X[X_V_PREV]) * fs
     X[X_V_PREV] = v
+    if P[P_RATE_LAG] != 0.0:
+        # An inverse solving this sample's input from its output: with this sample's rate, the rate
+        # terms (gain k(|v'|) on the loop, damping sgn(v')|v'|^m) weigh the input by the sample rate
+        # and the map from input to output falls as well as rises; solved per sample it chatters
+        # between the branches. The rate so far (the previous samples', low-passed over RATE_LAG_S
+        # so a jump of one sample does not swing the next) leaves only the hysteresis to solve.
+        rate_so_far = X[X_VDOT_PREV]
+        X[X_VDOT_PREV] += (vdot - rate_so_far) / max(1.0, RATE_LAG_S * fs)
+        vdot = rate_so_far
     row = I[I_X_ROW]
     base = I[I_BASE]
     # -- base: hysteresis columns ----------------------------------------------------------------

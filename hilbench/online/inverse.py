@@ -216,14 +216,16 @@ class Compensator:
         # the static part: dynamics and delay are inverted (or not) outside the model
         I[ST.I_DYN_ON] = 0
         I[ST.I_DELAY] = 0
-        self.I, self.P = I, compiled.P
+        P = compiled.P.copy()
+        P[ST.P_RATE_LAG] = 1.0  # rate terms on the previous sample's rate: see model_step
+        self.I, self.P = I, P
         self.X = np.zeros(int(I[ST.I_NX]))
         self.channels = list(compiled.channels)
         self.unit = unit
         us = float(model.norm["u_scale"])
         # what the model knows and reaches: the static map over the fitted inputs (see operating_range)
         aux_ref = np.array([float(model.effect(c).constants["reference"]) for c in self.channels] or [0.0])
-        self.range = operating_range(model, I, compiled.P, aux_ref, (lo, hi))
+        self.range = operating_range(model, I, P, aux_ref, (lo, hi), sample_rate_hz=self.fs)
 
         extra = [e.name for e in model.effects if e.name not in _OUTSIDE_STATIC and e.name != "asymmetry"]
         structure = None if extra else _pi_structure(model)

@@ -11,8 +11,9 @@ channels held at their references (the compensator inverts exactly that; a track
 the dynamics and the delay over its whole reference beforehand, :mod:`hilbench.online.preview`). Its *major loop* over a
 command range ``[a, b]`` is traced as the rig would: from rest to ``a``, up to ``b``, down to ``a``
 (which wipes the model's memory), then the ascending branch ``a -> b`` and the descending branch
-``b -> a`` are kept (:data:`BRANCH_SAMPLES` samples each, at the model's sample rate; a rate-dependent
-model is so evaluated at that ramp's rate).
+``b -> a`` are kept (:data:`BRANCH_SAMPLES` samples each, at the model's sample rate; a model with
+rate-dependence or creep is traced as a 1 Hz loop, :data:`SLOW_BRANCH_S` per branch, and so evaluated
+at that ramp's rate: traced fast, its branch keeps rising after a reversal).
 
 A branch *rises* when, walked with increasing command, it never falls by more than
 :data:`FALL_TOLERANCE` of the loop's output span below its running maximum: a dip that small
@@ -39,11 +40,15 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 
-__all__ = ["OperatingRange", "fitted_input_range", "static_major_loop", "branch_fall", "operating_range",
-           "BRANCH_SAMPLES", "FALL_TOLERANCE", "WIDEN_STEPS"]
+__all__ = ["OperatingRange", "fitted_input_range", "static_major_loop", "branch_fall", "branch_samples",
+           "operating_range", "BRANCH_SAMPLES", "SLOW_BRANCH_S", "FALL_TOLERANCE", "WIDEN_STEPS"]
 
 #: samples per branch of the traced major loop
 BRANCH_SAMPLES = 400
+#: a model with memory in time (rate-dependence, creep) is traced at least this slowly (s per branch:
+#: a 1 Hz loop, the quasi-static drive of most plans): traced fast, a rate-dependent branch keeps
+#: rising after its reversal, a fall that is the ramp's, not the map's, and creep has no time to act
+SLOW_BRANCH_S = 0.5
 #: largest accepted fall of a branch below its running maximum, share of the loop's output span
 FALL_TOLERANCE = 0.005
 #: steps in which the fitted range is widened towards each rig limit
@@ -130,8 +135,18 @@ def branch_fall(u: np.ndarray, y: np.ndarray) -> tuple[float, int, int]:
     return fall, j, k
 
 
-def _loop_rises(I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, a: float, b: float) -> tuple[bool, dict[str, Any]]:
-    u, up, down = static_major_loop(I, P, aux_ref, a, b)
+def branch_samples(I: np.ndarray, sample_rate_hz: float | None) -> int:
+    """Samples per traced branch: :data:`BRANCH_SAMPLES`, or :data:`SLOW_BRANCH_S` at the model's rate
+    for a model with rate-dependence or creep."""
+    timed = int(I[ST.I_RATE]) != 0 or int(I[ST.I_NCREEP]) != 0
+    if not timed or not sample_rate_hz:
+        return BRANCH_SAMPLES
+    return max(BRANCH_SAMPLES, int(SLOW_BRANCH_S * sample_rate_hz))
+
+
+def _loop_rises(I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, a: float, b: float,
+                n: int = BRANCH_SAMPLES) -> tuple[bool, dict[str, Any]]:
+    u, up, down = static_major_loop(I, P, aux_ref, a, b, n)
     y_lo, y_hi = float(min(up.min(), down.min())), float(max(up.max(), down.max()))
     span = max(y_hi - y_lo, 1e-300)
     worst: dict[str, Any] = {"fall": -1.0}
@@ -145,12 +160,15 @@ def _loop_rises(I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, a: float, b: 
 
 
 def operating_range(model: Any, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray,
-                    limits: tuple[float, float], *, widen: bool = True) -> OperatingRange:
+                    limits: tuple[float, float], *, widen: bool = True,
+                    sample_rate_hz: float | None = None) -> OperatingRange:
     """The model's operating range on a rig with command ``limits`` (see the module docstring).
-    ``I, P``: the compiled model with dynamics and delay off; ``aux_ref``: the aux channels' values."""
+    ``I, P``: the compiled model with dynamics and delay off; ``aux_ref``: the aux channels' values;
+    ``sample_rate_hz``: the model's rate (a model with memory in time is traced slowly at it)."""
     (a, b), source = fitted_input_range(model, limits)
     aux_ref = np.asarray(aux_ref, float).ravel() if np.size(aux_ref) else np.zeros(1)
-    rises, worst = _loop_rises(I, P, aux_ref, a, b)
+    n = branch_samples(I, sample_rate_hz)
+    rises, worst = _loop_rises(I, P, aux_ref, a, b, n)
     result = OperatingRange((a, b), source, (a, b), worst["output"], rises, max(worst["fall"], 0.0),
                             worst.get("from", (a, 0.0)), worst.get("to", (b, 0.0)), worst.get("branch", ""),
                             (float(limits[0]), float(limits[1])), worst["slope"])
@@ -165,7 +183,7 @@ def operating_range(model: Any, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarra
         for step in range(1, WIDEN_STEPS + 1):
             trial = edge + (limit - edge) * step / WIDEN_STEPS
             c, d = (trial, b) if side == "low" else (a, trial)
-            ok, found = _loop_rises(I, P, aux_ref, c, d)
+            ok, found = _loop_rises(I, P, aux_ref, c, d, n)
             # beyond the fitted range the model is extrapolated: no fall at all is accepted there
             # (a cubic turning over near the rail, 0.4 um on a 95 um loop, is where a solve goes wrong)
             span = found["output"][1] - found["output"][0]

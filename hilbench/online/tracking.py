@@ -292,8 +292,9 @@ SETTLE_NOISE_SIGMAS = 4.0
 SETTLE_SPAN_FRACTION = 1e-3
 #: ... and at most this long (s); a rig still moving then is run anyway and said so
 SETTLE_MOST_S = 1.0
-#: the first command is re-aimed when the model's memory moved it by more than this share of the range
-SETTLE_COMMAND_FRACTION = 1e-4
+#: the first command is re-aimed when the model's memory moved it by what, at the model's mean slope,
+#: is more than this share of the reference's span (finer re-aims chase the minor loops they make)
+SETTLE_REAIM_FRACTION = 0.01
 
 
 def _hold_until_settled(rig: Any, comp: Compensator, reference0: float, aux0: dict[str, float] | None,
@@ -312,14 +313,14 @@ def _hold_until_settled(rig: Any, comp: Compensator, reference0: float, aux0: di
     fs = rig.sample_rate_hz
     window = max(SETTLE_MIN_WINDOW, int(math.ceil(SETTLE_WINDOW_S * fs)))
     most = max(int(SETTLE_MOST_S * fs), at_least + 2 * window)
-    lo, hi = comp.limits
+    slope = abs(comp.range.slope) or 1.0  # um per command unit
     command = comp.peek(reference0, aux0)
     _drive(rig, comp, command, hold=max(at_least, 0))
     held = max(at_least, 0)
     previous: float | None = None
     while held < most:
         aimed = comp.peek(reference0, aux0)
-        if abs(aimed - command) > SETTLE_COMMAND_FRACTION * (hi - lo):
+        if abs(aimed - command) * slope > SETTLE_REAIM_FRACTION * span:
             command, previous = aimed, None
             _drive(rig, comp, command)
         applied = rig.apply(np.full(window, command))
