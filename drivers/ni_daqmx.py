@@ -13,17 +13,35 @@ Roles:
   task on the AO task's start trigger (``/CHASSIS/ao/StartTrigger``: both start on the same edge and
   run at the same rate from the chassis timebase), starts the AO, reads back every AI sample.
 
-Per-sample work has two modes (``mode``):
+Per-sample work has three modes (``mode``); in the first two the DAQ's sample clock at
+``sample_rate_hz`` times the loop (:meth:`NIDAQmxDevice.wait_for_next_sample_clock`, which the
+rig's fixed-rate loop calls instead of keeping its own deadlines; a ``read()`` without it waits
+first) and the samples the DAQ reports late are counted (:meth:`NIDAQmxDevice.clock_stats`):
 
-* ``hw-timed-single-point`` (default): both tasks run ``AcquisitionType.HW_TIMED_SINGLE_POINT`` at
-  ``sample_rate_hz``; ``read()`` first waits for the AI task's next sample clock (DAQmx Wait For Next
-  Sample Clock), so the DAQ's clock paces the loop, and counts the samples DAQmx reports late
-  (:meth:`NIDAQmxDevice.clock_stats`). The ``nidaqmx`` package (1.x) has no Python method for that
-  DAQmx call, so the driver calls it itself: through the device server's ``WaitForNextSampleClock``
-  RPC (stubs shipped in ``nidaqmx._stubs``) or, locally, ``DAQmxWaitForNextSampleClock`` from the
-  DAQmx C library that ``nidaqmx`` loaded. Delta-sigma modules such as the NI 9234 do not support
-  single point timing on real hardware: use ``on-demand`` or the player with them.
+* ``hw-timed-single-point`` (default; PCIe/PXI multifunction DAQs): both tasks run
+  ``AcquisitionType.HW_TIMED_SINGLE_POINT``; the wait is DAQmx Wait For Next Sample Clock on the AI
+  task, whose ``isLate`` says the loop missed the tick. The ``nidaqmx`` package (1.x) has no Python
+  method for it, so the driver calls the device server's ``WaitForNextSampleClock`` RPC (stubs shipped
+  in ``nidaqmx._stubs``) or, locally, ``DAQmxWaitForNextSampleClock`` from the DAQmx C library that
+  ``nidaqmx`` loaded. C Series modules in a cDAQ chassis have neither ("C Series devices do not
+  support hardware-timed single-point sample mode or Wait for Next Sample Clock", NI-DAQmx Device
+  Considerations, Timing Considerations for C Series Devices): use ``ai-clocked`` there.
+* ``ai-clocked`` (a cDAQ): the AI task acquires continuously on its sample clock into DAQmx's buffer
+  (``AcquisitionType.CONTINUOUS``, ``ai_buffer_s`` of samples) and the wait reads the next sample,
+  which returns when the DAQ has acquired it; the AO is written on demand as soon as the loop has
+  its command (NI's "hardware-timed input, software-timed output" control case). The wait first
+  reads every sample already acquired (DAQmx Read of -1 samples, timeout 0): any means the tick came
+  before the loop got back to wait, as Wait For Next Sample Clock's ``isLate`` says; the newest is
+  kept (the loop acts on the latest measurement and waits for the next tick, as a late Wait For
+  Next Sample Clock does). None: it reads the next sample, which returns when the DAQ has acquired
+  it. A backlog the buffer could not hold (DAQmx -200279) restarts the acquisition and counts as late.
 * ``on-demand``: software-timed scalar writes and reads (the rig's loop keeps the time).
+
+At open the tasks are verified (DAQmx TaskControl Verify), so a timing the modules refuse fails then,
+with DAQmx's own error, and the sample rate is read back (``SampClk.Rate``): DAQmx coerces a rate a
+module cannot run (the NI 9234 runs 51.2 kS/s / n, n = 1..31, and rounds a rate up to the next of
+them), and a rate other than ``sample_rate_hz`` is refused in one line naming both. ``play`` reads
+its AI task's rate back the same way before anything moves.
 
 ``url``: ``grpc://HOST:PORT`` for an NI gRPC Device Server (its default port is 31763), or ``local``
 for the NI-DAQmx driver installed on this computer.
@@ -62,7 +80,9 @@ from drivers.base import (
 T = TypeVar("T")
 
 INSTALL_HINT = "pip install 'hilbench[nidaqmx]'"
-MODES = ("hw-timed-single-point", "on-demand")
+MODES = ("hw-timed-single-point", "ai-clocked", "on-demand")
+CLOCKED = ("hw-timed-single-point", "ai-clocked")
+SAMPLES_NO_LONGER_AVAILABLE = -200279  # a continuous acquisition's buffer overwrote unread samples
 TERMINAL_CONFIGS = {"default": -1, "rse": 10083, "nrse": 10078, "diff": 10106, "pseudodiff": 12529}
 # DAQmx errors that mean "not yet": the samples or the clock did not come within the timeout.
 TIMEOUT_CODES = {-200284, -200474}
@@ -169,6 +189,7 @@ class NIDAQmxDevice:
         self.backoff_s = float(settings["backoff_s"])
         self.rest = float(settings["rest"])
         self.play_margin_s = float(settings["play_margin_s"])
+        self.ai_buffer_s = float(settings["ai_buffer_s"])
         self.slew_per_s = float(settings["slew_per_s"])
         self._rpc_deadline_s = self.timeout_s + self.rpc_margin_s
         self._token = uuid.uuid4().hex[:8]
@@ -178,9 +199,13 @@ class NIDAQmxDevice:
         self._ao: Any = None  # the per-sample tasks, created at open, started on first use
         self._ai: Any = None
         self._ai_buffer = np.zeros(len(self.ai_channels), dtype=np.float64)
+        # ai-clocked: room for every sample DAQmx's buffer can hold, read at once when the loop is late
+        self._ai_backlog = np.zeros(len(self.ai_channels) * max(2, math.ceil(self.rate_hz * self.ai_buffer_s))
+                                    if self.mode == "ai-clocked" else 0, dtype=np.float64)
         self._last_amps = self.rest
-        self.samples = 0  # single point: sample clocks waited for
+        self.samples = 0  # clocked modes: sample clocks waited for
         self.late = 0  # ... of which DAQmx reported late
+        self._clock_taken = False  # the next read() is for a tick already waited for
         self.version = "?"
         if self.address is not None:
             host, port = self.address
@@ -245,7 +270,7 @@ class NIDAQmxDevice:
     # -- per-sample tasks -----------------------------------------------------------------------------
     def _open_loop_tasks(self) -> None:
         """Create the AO and AI tasks of write/read (bad channel names fail here, at open)."""
-        from nidaqmx.constants import AcquisitionType, TerminalConfiguration
+        from nidaqmx.constants import AcquisitionType, TaskMode, TerminalConfiguration
 
         def build() -> None:
             ao = self._task("ao")
@@ -262,6 +287,17 @@ class NIDAQmxDevice:
                 if self.mode == "hw-timed-single-point":
                     for task in (ao, ai):
                         task.timing.cfg_samp_clk_timing(self.rate_hz, sample_mode=AcquisitionType.HW_TIMED_SINGLE_POINT)
+                elif self.mode == "ai-clocked":
+                    ai.timing.cfg_samp_clk_timing(self.rate_hz, sample_mode=AcquisitionType.CONTINUOUS,
+                                                  samps_per_chan=max(2, math.ceil(self.rate_hz * self.ai_buffer_s)))
+                if self.mode in CLOCKED:
+                    # DAQmx checks timing when a task is verified: a module that cannot run it fails
+                    # here, at open, with DAQmx's own error, not at the first sample
+                    ai_names = ", ".join(self.ai_channels.values())
+                    for task, names in ((ao, self.ao_channel), (ai, ai_names)) if self.mode == "hw-timed-single-point" \
+                            else ((ai, ai_names),):
+                        task.control(TaskMode.TASK_VERIFY)
+                        self._check_rate(task, names)
                 self.version = ".".join(str(v) for v in ai._interpreter.driver_version)
             except BaseException:
                 ao.close()
@@ -279,11 +315,20 @@ class NIDAQmxDevice:
         self._reader.verify_array_shape = False  # the buffer is ours and fixed: no attribute query per sample
         self._loop_started = False
 
+    def _check_rate(self, task: Any, channels: str) -> None:
+        """Refuse a sample rate DAQmx coerced (a module that cannot run ``rate_hz`` exactly)."""
+        actual = float(task.timing.samp_clk_rate)
+        if not math.isclose(actual, self.rate_hz, rel_tol=1e-9):
+            raise DeviceError(self.name, f"sample_rate_hz {self.rate_hz:g}: DAQmx runs the loop's sample clock of "
+                                         f"{channels} at {actual:.6g} Hz (the rate the module can run); set "
+                                         f"sample_rate_hz (and the rig's) to a rate it runs exactly")
+
     def _start_loop(self) -> None:
         if self._loop_started:
             return
         self._call("starting the AI task", self._ai.start)
-        self._call("starting the AO task", self._ao.start)
+        if self.mode == "hw-timed-single-point":  # ai-clocked: the AO is on demand, started by its writes
+            self._call("starting the AO task", self._ao.start)
         self._loop_started = True
 
     def _stop_loop(self) -> None:
@@ -294,9 +339,70 @@ class NIDAQmxDevice:
                 self._call("stopping a task", task.stop, retried=False)
         self._loop_started = False
 
+    def sample_clock_hz(self) -> float | None:
+        """Hz of the sample clock that times write/read (None on demand: nothing does)."""
+        return self.rate_hz if self.mode in CLOCKED else None
+
+    def sample_clock(self) -> str:
+        if self.mode == "hw-timed-single-point":
+            return f"DAQmx hardware-timed single point at {self.rate_hz:g} Hz, Wait For Next Sample Clock"
+        if self.mode == "ai-clocked":
+            return (f"DAQmx continuous AI at {self.rate_hz:g} Hz on {', '.join(self.ai_channels.values())}, "
+                    "read one sample a tick; AO on demand")
+        return "none (on demand)"
+
     def wait_for_next_sample_clock(self) -> bool:
-        """Wait for the AI task's next sample clock (hardware-timed single point); True when DAQmx
-        reports the wait late (the clock edge had already passed). Counted in :meth:`clock_stats`."""
+        """Wait for the DAQ's next sample clock (see the module docstring); True when DAQmx reports
+        the loop late (the tick had already passed). Counted in :meth:`clock_stats`; the next
+        :meth:`read` returns that tick's sample."""
+        if self.mode == "ai-clocked":
+            late = self._next_acquired_sample()
+        elif self.mode == "hw-timed-single-point":
+            late = self._wait_hwtsp()
+        else:
+            raise DeviceError(self.name, "mode 'on-demand' has no sample clock to wait for")
+        self.samples += 1
+        self.late += int(late)
+        self._clock_taken = True
+        return late
+
+    def _next_acquired_sample(self) -> bool:
+        """ai-clocked: the samples already acquired (late: the tick passed before the wait began; the
+        newest is kept), else the next one the DAQ acquires (on time)."""
+        from nidaqmx.constants import READ_ALL_AVAILABLE, FillMode
+
+        self._start_loop()
+        chans, buffer = len(self.ai_channels), self._ai_buffer
+        # nidaqmx's readers ask DAQmx how many samples wait before reading them all (one more
+        # round trip); DAQmx's own read of all available samples needs none
+        interpreter, handle = self._ai._interpreter, self._ai._handle
+        waiting = self._ai_backlog
+
+        def acquired() -> int:
+            return int(interpreter.read_analog_f64(handle, READ_ALL_AVAILABLE, 0.0, FillMode.GROUP_BY_SCAN_NUMBER.value,
+                                                   waiting)[1])
+
+        def next_sample() -> None:
+            self._reader.read_one_sample(buffer, timeout=self.timeout_s + 1.0 / self.rate_hz)
+
+        try:
+            count = self._call("reading the acquired AI samples", acquired)
+        except DeviceError as exc:
+            if f"error {SAMPLES_NO_LONGER_AVAILABLE}:" not in str(exc):
+                raise
+            # the loop fell behind by more than the buffer: start the acquisition afresh (late)
+            self._call("restarting the AI acquisition", self._ai.stop, retried=False)
+            self._call("restarting the AI acquisition", self._ai.start, retried=False)
+            self._call("reading the next acquired AI sample", next_sample)
+            return True
+        if count:
+            buffer[:] = waiting[(count - 1) * chans:count * chans]
+            return True
+        self._call("waiting for the next acquired AI sample", next_sample)
+        return False
+
+    def _wait_hwtsp(self) -> bool:
+        """hw-timed-single-point: DAQmx Wait For Next Sample Clock on the AI task."""
         self._start_loop()
         if self._stub is None and self._channel is not None:
             from nidaqmx._stubs import nidaqmx_pb2_grpc
@@ -314,10 +420,7 @@ class NIDAQmxDevice:
                 return bool(reply.is_late)
             return self._local_wait()
 
-        late = self._call("waiting for the next sample clock", wait)
-        self.samples += 1
-        self.late += int(late)
-        return late
+        return self._call("waiting for the next sample clock", wait)
 
     def _local_wait(self) -> bool:
         """DAQmxWaitForNextSampleClock from the DAQmx C library nidaqmx loaded (no Python method exists)."""
@@ -337,7 +440,7 @@ class NIDAQmxDevice:
         return bool(is_late.value)
 
     def clock_stats(self) -> dict[str, int]:
-        """Sample clocks waited for and how many DAQmx reported late (hardware-timed single point)."""
+        """Sample clocks waited for and how many DAQmx reported late (the clocked modes)."""
         return {"samples": self.samples, "late": self.late}
 
     # -- device contract ------------------------------------------------------------------------------
@@ -356,8 +459,7 @@ class NIDAQmxDevice:
             "ai_range_v": [self.ai_min_v, self.ai_max_v],
             "mode": self.mode,
             "sample_rate_hz": self.rate_hz,
-            "clock": "the AI task's sample clock (Wait For Next Sample Clock)" if self.mode == "hw-timed-single-point"
-            else "software (on demand)",
+            "clock": self.sample_clock(),
             "play": f"finite AO + AI on the start trigger {self.start_trigger}",
             "channels": {"output": "um", **({"current": "A"} if "current" in self.ai_channels else {}),
                          "input": "A (the AO command)"},
@@ -374,16 +476,21 @@ class NIDAQmxDevice:
         """Amplifier current, A: written as volts to the AO channel (goes out on the next sample clock
         in single point mode)."""
         volts = self._volts(value)
-        if self.mode == "hw-timed-single-point":
+        if self.mode in CLOCKED:
             self._start_loop()
         self._call(f"writing {volts:g} V to {self.ao_channel}", lambda: self._writer.write_one_sample(volts,
                                                                                                     timeout=self.timeout_s))
         self._last_amps = float(value)
 
     def read(self) -> dict[str, float]:
-        """``output`` um (and ``current`` A); in single point mode after the next sample clock."""
-        if self.mode == "hw-timed-single-point":
-            self.wait_for_next_sample_clock()
+        """``output`` um (and ``current`` A). In the clocked modes the sample of the tick last waited
+        for; without a wait since the last read, it waits for the next tick first."""
+        if self.mode in CLOCKED:
+            if not self._clock_taken:
+                self.wait_for_next_sample_clock()
+            self._clock_taken = False
+            if self.mode == "ai-clocked":  # the wait read the sample
+                return self._physical(self._ai_buffer)
         self._call("reading the AI channels", lambda: self._reader.read_one_sample(self._ai_buffer,
                                                                                    timeout=self.timeout_s))
         return self._physical(self._ai_buffer)
@@ -428,6 +535,7 @@ class NIDAQmxDevice:
                                          f"{self.ao_min_v:g}..{self.ao_max_v:g} V")
         rate = float(rate_hz)
         self._stop_loop()  # the lines belong to one running task at a time
+        self._clock_taken = False
         duration_s = n / rate
         # the generation's own length, and a margin for a slow start (an emulated plant compiling)
         self._rpc_deadline_s = self.timeout_s + self.rpc_margin_s + duration_s + self.play_margin_s
@@ -440,6 +548,11 @@ class NIDAQmxDevice:
                     ai.ai_channels.add_ai_voltage_chan(physical, terminal_config=TerminalConfiguration(self.terminal),
                                                        min_val=self.ai_min_v, max_val=self.ai_max_v)
                 ai.timing.cfg_samp_clk_timing(rate, sample_mode=AcquisitionType.FINITE, samps_per_chan=n)
+                actual = float(ai.timing.samp_clk_rate)
+                if not math.isclose(actual, rate, rel_tol=1e-9):  # coerced: the AI would not match the AO
+                    raise DeviceError(self.name, f"play at {rate:g} Hz: DAQmx runs the AI sample clock of "
+                                                 f"{', '.join(self.ai_channels.values())} at {actual:.6g} Hz (the "
+                                                 "rate the module can run); set the rig's sample_rate_hz to it")
                 ai.triggers.start_trigger.cfg_dig_edge_start_trig(self.start_trigger, trigger_edge=Edge.RISING)
                 ao = self._task("play-ao")
                 tasks.append(ao)
@@ -510,8 +623,9 @@ SETTINGS = (
     Setting("output_offset_um", float, default=0.0, doc="um at 0 V on the output AI"),
     Setting("current_monitor_v_per_a", float, default=1.0, doc="V at the current AI per A of amplifier output"),
     Setting("mode", str, default="hw-timed-single-point",
-            doc="per-sample write/read: hw-timed-single-point (the DAQ clock paces) or on-demand"),
-    Setting("sample_rate_hz", float, default=1000.0, doc="Hz, sample clock of the single point tasks"),
+            doc="per-sample write/read: hw-timed-single-point or ai-clocked (a cDAQ; the DAQ clock paces both) or on-demand"),
+    Setting("sample_rate_hz", float, default=1000.0, doc="Hz, sample clock of the per-sample tasks (the rig's rate)"),
+    Setting("ai_buffer_s", float, default=10.0, doc="s of samples DAQmx buffers in ai-clocked mode"),
     Setting("start_trigger", str, default="", doc="terminal the play AI task starts on ('' = /CHASSIS/ao/StartTrigger)"),
     Setting("timeout_s", float, default=1.0, doc="s, DAQmx timeout of each read, write and clock wait"),
     Setting("rpc_margin_s", float, default=2.0, doc="s added to timeout_s as the deadline of every gRPC call"),

@@ -4,17 +4,40 @@ It speaks the ``nidaqmx_grpc.NiDAQmx`` service of the NI gRPC Device Server (``n
 stubs ship with the ``nidaqmx`` package in ``nidaqmx/_stubs``), so NI's own ``nidaqmx`` client runs
 unchanged against it through ``nidaqmx.Task(grpc_options=GrpcSessionOptions(channel, name))``.
 
-The chassis holds the modules the driver table names: the AO module of ``ao_channel`` (an NI 9263:
-``ao0..ao3``, +-10 V) and the AI module of ``ai_output_channel``/``ai_current_channel`` (an NI 9234:
-``ai0..ai3``, +-5 V). Any other physical channel is refused with DAQmx error -200170, as NI-DAQmx
-does. Behind them is a :class:`~drivers.base.World`:
+The chassis holds the modules the driver table names: the AO module of ``ao_channel`` and the AI
+module of ``ai_output_channel``/``ai_current_channel``, of the products ``emulated_ao_product`` and
+``emulated_ai_product``. The products in :data:`PRODUCTS` keep their specifications' limits:
+
+* NI 9263 (AO, ``ao0..ao3``, +-10 V), NI 9215 (AI, ``ai0..ai3``, +-10 V, simultaneous SAR) and NI 9234
+  (AI, ``ai0..ai3``, +-5 V, delta-sigma) are C Series modules: "C Series devices do not support
+  hardware-timed single-point sample mode or Wait for Next Sample Clock" (NI-DAQmx Device
+  Considerations, Timing Considerations for C Series Devices). A task with that sample mode fails
+  when it is verified or started with -200077 (the DAQmx error for a property value the device does
+  not support; NI's exact wording for this case was not found, the property named is our reading).
+* The NI 9234 samples at fs = (fM / 256) / n, n = 1..31, fM = 13.1072 MHz (its internal master
+  timebase): 51.2 kS/s, 25.6 kS/s, ... down to 1.652 kS/s (NI-9234 Specifications, Data Rate Range;
+  NI USB-9234 User Guide, "Understanding NI USB-9234 Data Rates"). A rate between them is coerced up
+  to the next one (NI KnowledgeBase, input delay and valid rates of the NI 9237/9234: "it will be
+  coerced up to the next highest Data Rate"), which ``SampClk.Rate`` reads back; above 51.2 kS/s is
+  refused with -200077 at verify or start.
+* Any other product name is a generic DAQmx device (a PCIe/PXI multifunction DAQ: 4 lines, +-10 V
+  AO, +-5 V AI, any rate, hardware-timed single point supported).
+
+Any other physical channel is refused with DAQmx error -200170, as NI-DAQmx does. Behind the modules
+is a :class:`~drivers.base.World`:
 
 * an AO sample (volts) -> amps through ``amplifier_gain_a_per_v`` -> ``world.command(amps)``;
 * an AI sample: ``world.read("output")`` um -> volts through ``output_um_per_v``/``output_offset_um``,
   ``world.read("current")`` A -> volts through ``current_monitor_v_per_a``; clipped to the module's
   input range as a real ADC clips;
 * a buffered (finite) AO task started while an AI task waits on its start trigger runs the whole
-  waveform through ``world.play`` and the AI task acquires what the world recorded.
+  waveform through ``world.play`` and the AI task acquires what the world recorded;
+* a continuous AI task without a trigger acquires sample k at ``t0 + k / rate`` (wall clock) into a
+  buffer of ``samps_per_chan`` samples: a read waits until its samples are acquired and returns the
+  world as it is then (the world moves only when the AO is written, so a backlog repeats the present
+  value); a read of -1 samples returns those already acquired at once (none: none); ``AvailSampPerChan``
+  is the backlog; a backlog larger than the buffer fails the next read with -200279, as DAQmx does
+  when unread samples were overwritten.
 
 Each started task has a sample clock of its own, paced by the wall clock at the configured rate:
 ``WaitForNextSampleClock`` sleeps until the next tick and answers ``is_late = True`` (at once, catching
@@ -60,9 +83,52 @@ ERROR_TEXT: dict[int, str] = {
     -200863: "Wait For Next Sample Clock is not supported by this task: it is not hardware-timed single point.",
     -200462: "Generation cannot be started, because the output buffer is empty.",
     -200022: "Resource requested by this task has already been reserved by a different task.",
+    -200279: "Attempted to read samples that are no longer available. The requested sample was previously "
+             "available, but has since been overwritten.",
     -200428: "Value passed to the Task/Channels In control is invalid.",
 }
 FINITE, CONTINUOUS, HW_TIMED_SINGLE_POINT = 10178, 10123, 12522  # nidaqmx.constants.AcquisitionType
+MODE_NAMES = {FINITE: "DAQmx_Val_FiniteSamps", CONTINUOUS: "DAQmx_Val_ContSamps",
+              HW_TIMED_SINGLE_POINT: "DAQmx_Val_HWTimedSinglePoint"}
+SAMP_CLK_RATE = 0x1344  # DAQmx_SampClk_Rate
+AVAIL_SAMP_PER_CHAN = 0x1223  # DAQmx_Read_AvailSampPerChan
+TASK_VERIFY, TASK_COMMIT = 2, 3  # nidaqmx.constants.TaskMode
+
+
+@dataclass(frozen=True)
+class Product:
+    """What the emulator keeps of a module's specifications."""
+
+    kind: str  # "ao" | "ai"
+    lines: int
+    range_v: float  # +- V
+    c_series: bool  # no hardware-timed single point, no Wait For Next Sample Clock
+    max_rate_hz: float
+    #: delta-sigma: the rates are (fM / 256) / n, n = 1..this; 0 = any rate up to max_rate_hz
+    divisors: int = 0
+
+    def rate(self, requested_hz: float) -> float:
+        """The rate DAQmx runs for ``requested_hz``: a delta-sigma module's next rate up."""
+        if not self.divisors or requested_hz > self.max_rate_hz:
+            return requested_hz
+        n = max(1, min(self.divisors, math.floor(self.max_rate_hz / requested_hz * (1 + 1e-12))))
+        return self.max_rate_hz / n
+
+
+#: the modules emulated with their specifications' limits (see the module docstring)
+PRODUCTS: dict[str, Product] = {
+    "NI 9263": Product("ao", 4, 10.0, True, 100e3),  # 100 kS/s/ch
+    "NI 9215": Product("ai", 4, 10.0, True, 100e3),  # 100 kS/s/ch, simultaneous SAR
+    "NI 9234": Product("ai", 4, 5.0, True, 13.1072e6 / 256, divisors=31),  # 51.2 kS/s / n
+}
+
+
+def product_of(name: str, kind: str) -> Product:
+    """The product's limits; a product not in :data:`PRODUCTS` is a generic multifunction DAQ."""
+    known = PRODUCTS.get(name)
+    if known is not None and known.kind == kind:
+        return known
+    return Product(kind, 4, 10.0 if kind == "ao" else 5.0, False, math.inf)
 GROUP_BY_CHANNEL = 0  # nidaqmx.constants.FillMode.GROUP_BY_CHANNEL
 DRIVER_VERSION = (24, 8, 0)  # what GetSystemInfoAttributeUInt32 reports as the NI-DAQmx version
 
@@ -72,6 +138,7 @@ IMPLEMENTED = (
     "TaskControl", "IsTaskDone", "WaitUntilTaskDone", "GetTaskAttributeString", "GetTaskAttributeUInt32",
     "GetReadAttributeUInt32", "GetWriteAttributeUInt32", "GetDeviceAttributeString",
     "CreateAOVoltageChan", "CreateAIVoltageChan", "CfgSampClkTiming", "CfgDigEdgeStartTrig",
+    "GetTimingAttributeDouble",
     "WriteAnalogScalarF64", "WriteAnalogF64", "ReadAnalogScalarF64", "ReadAnalogF64", "WaitForNextSampleClock",
 )
 
@@ -150,10 +217,11 @@ class NIDAQmxEmulator:
         if not ao_device or not ai_device:
             raise ValueError(f"ao_channel {settings['ao_channel']!r} / ai_output_channel "
                              f"{settings['ai_output_channel']!r}: expected DEVICE/aoN and DEVICE/aiN")
-        # the modules in the chassis: device name -> (product type, kind, lines, range in V)
-        self.modules: dict[str, tuple[str, str, int, float]] = {
-            ao_device: (str(settings["emulated_ao_product"]), "ao", 4, 10.0),
-            ai_device: (str(settings["emulated_ai_product"]), "ai", 4, 5.0),
+        # the modules in the chassis: device name -> (product type, its limits)
+        ao_product, ai_product = str(settings["emulated_ao_product"]), str(settings["emulated_ai_product"])
+        self.modules: dict[str, tuple[str, Product]] = {
+            ao_device: (ao_product, product_of(ao_product, "ao")),
+            ai_device: (ai_product, product_of(ai_product, "ai")),
         }
         # which world channel each AI line measures
         self.sources: dict[str, str] = {str(settings["ai_output_channel"]).strip("/"): "output"}
@@ -283,10 +351,41 @@ class NIDAQmxEmulator:
         return self.pb.GetTaskAttributeUInt32Response(value=values[request.attribute_raw])
 
     def _GetReadAttributeUInt32(self, request: Any) -> Any:
-        task = self._task(request)
-        if request.attribute_raw == 0x217B:  # DAQmx_Read_NumChans
-            return self.pb.GetReadAttributeUInt32Response(value=len(task.channels))
+        with self._lock:
+            task = self._task(request)
+            if request.attribute_raw == 0x217B:  # DAQmx_Read_NumChans
+                return self.pb.GetReadAttributeUInt32Response(value=len(task.channels))
+            if request.attribute_raw == AVAIL_SAMP_PER_CHAN:
+                return self.pb.GetReadAttributeUInt32Response(value=max(0, self._acquired(task) - task.read_pos))
         raise DAQmxFault(-200077, f"attribute 0x{request.attribute_raw:X}")
+
+    def _GetTimingAttributeDouble(self, request: Any) -> Any:
+        with self._lock:
+            task = self._task(request)
+            if request.attribute_raw == SAMP_CLK_RATE and task.mode is not None:
+                return self.pb.GetTimingAttributeDoubleResponse(value=task.rate_hz)
+        raise DAQmxFault(-200077, f"attribute 0x{request.attribute_raw:X}")
+
+    def _acquired(self, task: Task) -> int:
+        """Samples a started hardware-timed AI task has acquired by now (sample 0 at its start)."""
+        if not task.running or task.mode not in (FINITE, CONTINUOUS):
+            return 0
+        count = int((time.monotonic() - task.t0) * task.rate_hz) + 1
+        return min(count, task.data.shape[1]) if task.data is not None else count
+
+    def _verify(self, task: Task) -> None:
+        """What DAQmx checks when a task is verified or started: the timing its modules can run."""
+        for device in sorted({_module(c.physical)[0] for c in task.channels}):
+            name, product = self.modules[device]
+            if task.mode == HW_TIMED_SINGLE_POINT and product.c_series:
+                raise DAQmxFault(-200077, f"Property: DAQmx_SampQuant_SampMode Requested Value: "
+                                          f"{MODE_NAMES[HW_TIMED_SINGLE_POINT]} You Can Select: "
+                                          f"{MODE_NAMES[FINITE]}, {MODE_NAMES[CONTINUOUS]} Device: {device} ({name}) "
+                                          f"Task Name: {task.name}")
+            if task.mode is not None and task.rate_hz > product.max_rate_hz:
+                raise DAQmxFault(-200077, f"Property: DAQmx_SampClk_Rate Requested Value: {task.rate_hz:g} "
+                                          f"Valid Values End with: {product.max_rate_hz:g} Device: {device} "
+                                          f"({name}) Task Name: {task.name}")
 
     def _GetWriteAttributeUInt32(self, request: Any) -> Any:
         task = self._task(request)
@@ -303,9 +402,9 @@ class NIDAQmxEmulator:
             module = self.modules.get(device)
             if module is None:
                 raise DAQmxFault(-200220, f"Device: {device} Channel Name: {physical}")
-            product, module_kind, lines, _range_v = module
+            product, spec = module
             number = line[len(kind):] if line.startswith(kind) else ""
-            if module_kind != kind or not number.isdigit() or int(number) >= lines:
+            if spec.kind != kind or not number.isdigit() or int(number) >= spec.lines:
                 raise DAQmxFault(-200170, f"Physical Channel Name: {physical} Device: {device} ({product})")
             if task.channels and task.channels[0].kind != kind:
                 raise DAQmxFault(-200428, "a task holds channels of one kind")
@@ -339,7 +438,10 @@ class NIDAQmxEmulator:
             if request.sample_mode_raw == CONTINUOUS and task.kind() == "ao":
                 # a regenerating AO buffer is not emulated: refused rather than played wrongly
                 raise DAQmxFault(-200077, "Property: DAQmx_SampQuant_SampMode (continuous AO is not emulated)")
-            task.mode, task.rate_hz = request.sample_mode_raw, float(request.rate)
+            task.mode = request.sample_mode_raw
+            # a rate the modules cannot run is coerced up (delta-sigma); too high fails at verify
+            task.rate_hz = max(self.modules[_module(c.physical)[0]][1].rate(float(request.rate))
+                               for c in task.channels) if task.channels else float(request.rate)
             task.samps_per_chan = int(request.samps_per_chan)
         return self.pb.CfgSampClkTimingResponse()
 
@@ -358,6 +460,7 @@ class NIDAQmxEmulator:
             return
         if not task.channels:
             raise DAQmxFault(-200428, f"Task Name: {task.name} has no channels")
+        self._verify(task)
         now = time.monotonic()
         task.read_pos, task.last_tick = 0, 0
         if task.kind() == "ai" and task.mode in (FINITE, CONTINUOUS) and task.start_trigger:
@@ -401,7 +504,7 @@ class NIDAQmxEmulator:
             volts = value * self.monitor_v_per_a
         else:
             volts = np.zeros_like(value)  # an unconnected input reads 0 V
-        range_v = self.modules[_module(channel.physical)[0]][3]
+        range_v = self.modules[_module(channel.physical)[0]][1].range_v
         return np.clip(np.nan_to_num(volts, nan=0.0), -range_v, range_v)  # the ADC clips at its range
 
     def _measure(self, task: Task) -> np.ndarray:
@@ -424,6 +527,8 @@ class NIDAQmxEmulator:
             task = self._task(request)
             if request.action_raw == 0:  # START
                 self._start(task)
+            elif request.action_raw in (TASK_VERIFY, TASK_COMMIT):
+                self._verify(task)
             elif request.action_raw in (1, 6):  # STOP, ABORT
                 task.running = task.armed = False
         return self.pb.TaskControlResponse()
@@ -514,10 +619,13 @@ class NIDAQmxEmulator:
                     raise DAQmxFault(-200077, "a single-point task reads one sample per channel")
                 values = self._measure(task)
                 return self.pb.ReadAnalogF64Response(read_array=values.tolist(), samps_per_chan_read=1)
-            if n < 0:
+            own_clock = task.mode == CONTINUOUS and not task.start_trigger
+            if n < 0 and not own_clock:
                 n = (task.samps_per_chan - task.read_pos) if task.mode == FINITE else 0
             if n * chans > request.array_size_in_samps:
                 raise DAQmxFault(-200229, f"{n} x {chans} samples into an array of {request.array_size_in_samps}")
+        if own_clock:
+            return self._read_continuous(request, n)
         deadline = time.monotonic() + max(0.0, request.timeout)
         while True:
             with self._lock:
@@ -535,6 +643,32 @@ class NIDAQmxEmulator:
             if time.monotonic() >= deadline:
                 raise DAQmxFault(-200284, f"Task Name: {task.name}")
             time.sleep(0.002)
+
+    def _read_continuous(self, request: Any, n: int) -> Any:
+        """A continuous acquisition on the task's own sample clock (see the module docstring)."""
+        deadline = time.monotonic() + max(0.0, request.timeout)
+        while True:
+            with self._lock:
+                task = self._task(request)
+                self._start(task)  # a read auto-starts a task that is not running, as DAQmx does
+                acquired = self._acquired(task)
+                if acquired - task.read_pos > max(1, task.samps_per_chan):
+                    raise DAQmxFault(-200279, f"{acquired - task.read_pos} samples behind with a buffer of "
+                                              f"{task.samps_per_chan} Task Name: {task.name}")
+                count = (acquired - task.read_pos) if n < 0 else n
+                if count * len(task.channels) > request.array_size_in_samps:
+                    raise DAQmxFault(-200229, f"{count} x {len(task.channels)} samples into an array of "
+                                              f"{request.array_size_in_samps}")
+                if acquired >= task.read_pos + count:
+                    values = self._measure(task)
+                    task.read_pos += count
+                    block = np.repeat(values[:, None], count, axis=1)
+                    array = block if request.fill_mode_raw == GROUP_BY_CHANNEL else block.T
+                    return self.pb.ReadAnalogF64Response(read_array=array.ravel().tolist(), samps_per_chan_read=count)
+                wake = task.t0 + (task.read_pos + count - 1) / task.rate_hz
+            if time.monotonic() >= deadline:
+                raise DAQmxFault(-200284, f"Task Name: {task.name}")
+            time.sleep(max(0.0, min(wake, deadline) - time.monotonic()))
 
     def _WaitForNextSampleClock(self, request: Any) -> Any:
         with self._lock:

@@ -395,11 +395,10 @@ def track(
     on_devices = plant is None or not hasattr(plant, "step_arrays")
     played = False
     if on_devices:
-        from hilbench.online.tracking_devices import refuse_per_sample_law_on_player
-        from hilbench.runners.block import can_play
+        from hilbench.online.tracking_devices import plays_waveform, refuse_per_sample_law_on_player
 
         refuse_per_sample_law_on_player(rig, comp)
-        played = can_play(rig)  # the device plays the run: no per-sample round trips to time
+        played = plays_waveform(rig, comp)  # the device plays the run: no per-sample round trips to time
     trips = None
     if on_devices and check_rate and rig.pace and not played:
         from hilbench.runners.rate_check import require_rate

@@ -12,7 +12,10 @@ Two ways, chosen by what the devices can do (:func:`hilbench.runners.sweep.selec
   played as the run's waveform, the recorder reading the output back (:class:`PlayedFeedforward`
   records the reference, command and error beside it). Feedback and online adaptation need a
   measurement every sample inside the loop; per-sample serial I/O to such a controller cannot carry
-  that at its rates, so they are refused on such a rig before anything moves.
+  that at its rates, so they are refused on such a rig before anything moves, unless the device's
+  own sample clock can pace a per-sample loop (a DAQ: :mod:`hilbench.runners.pacing`); then
+  feedback and online adaptation run in the fixed-rate loop paced by that clock, and a feedforward
+  alone is still played (:func:`plays_waveform`).
 
 Either way the run has the interlocks, Ctrl-C and SIGTERM held off to a safe point (the run recorded
 ``aborted``, :class:`~hilbench.errors.RunStopped`), the recording closed with its status and the
@@ -152,7 +155,6 @@ def track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: di
     from hilbench.excitation.plan import PlannedRun
     from hilbench.recording.hdf5 import Recording
     from hilbench.recording.lateness import loop_figures
-    from hilbench.runners.block import can_play
     from hilbench.runners.sweep import run_plan
 
     approach_from = rig.last_applied
@@ -162,7 +164,7 @@ def track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: di
         return _finish_attrs(_result(rig, comp, r, cmd, applied, y, {}, described, clipped))
 
     targets = ref if targets is None else targets
-    if can_play(rig):
+    if plays_waveform(rig, comp):
         law: Any = _played_feedforward(rig, comp, ref, figures, targets)
         mode = "block"
         attrs["played"] = ("the compensator's feedforward commands, computed before the run, played by the "
@@ -206,11 +208,22 @@ def track_on_devices(rig: Any, comp: Compensator, ref: np.ndarray, described: di
             temporary.cleanup()
 
 
-def refuse_per_sample_law_on_player(rig: Any, comp: Compensator) -> None:
-    """Feedback or online adaptation on a rig whose controller plays waveforms: refused (exit 2)."""
+def plays_waveform(rig: Any, comp: Compensator) -> bool:
+    """Whether the tracking run is played as one waveform (block mode): the rig's device plays
+    waveforms, and either the compensator is a feedforward alone or no device sample clock can pace
+    the per-sample loop its feedback or online adaptation needs."""
     from hilbench.runners.block import can_play
+    from hilbench.runners.pacing import device_clock
 
-    if not can_play(rig) or (comp.pid is None and comp.oiir is None):
+    if not can_play(rig):
+        return False
+    return (comp.pid is None and comp.oiir is None) or device_clock(rig) is None
+
+
+def refuse_per_sample_law_on_player(rig: Any, comp: Compensator) -> None:
+    """Feedback or online adaptation on a rig whose controller plays waveforms and has no sample
+    clock to pace a per-sample loop: refused (exit 2)."""
+    if not plays_waveform(rig, comp) or (comp.pid is None and comp.oiir is None):
         return
     what = "feedback" if comp.pid is not None else "online adaptation"
     raise UserError(

@@ -4,7 +4,8 @@
 does it, so the loop never does): overruns (samples later than one period), the largest lateness and
 a log-spaced histogram (1 ns .. 100 s, 20 bins per decade) for p50 and p99 to within ~12 % without
 keeping the samples. :func:`loop_figures` and :func:`loop_line` read them back for ``show``,
-``sweep`` and ``track``.
+``sweep`` and ``track``. A run paced by a DAQ's sample clock (:mod:`hilbench.runners.pacing`) also
+keeps ``clock`` (which device) and ``clock_late_samples`` (the samples the DAQ itself reported late).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 LATE_OVERRUN_PCT = 1.0
 #: what a fixed-rate loop's run keeps about its timing (``loop_tuning``: hilbench.runners.loop_tuning)
 LOOP_KEYS = ("paced", "overruns", "overrun_pct", "late", "lateness_p50_s", "lateness_p99_s", "lateness_max_s",
-             "loop_tuning")
+             "loop_tuning", "clock", "clock_late_samples")
 
 _EDGES = np.concatenate([[-np.inf, 0.0], np.logspace(-9, 2, 11 * 20 + 1), [np.inf]])
 
@@ -82,8 +83,13 @@ def loop_line(figures: dict[str, Any]) -> str:
     text = (f"loop: lateness p50 {t(figures.get('lateness_p50_s', float('nan')))}, p99 "
             f"{t(figures.get('lateness_p99_s', float('nan')))}, max {t(figures.get('lateness_max_s', float('nan')))}; "
             f"{int(figures.get('overruns', 0))} overruns ({float(figures.get('overrun_pct', 0.0)):.3g} %)")
+    if "clock_late_samples" in figures:
+        text += f"; the DAQ reported {int(figures['clock_late_samples'])} samples late"
     if figures.get("late"):
-        text += f": LATE, the devices did not keep the rate (more than {LATE_OVERRUN_PCT:g} % of samples a period late)"
+        text += (f": LATE, the devices did not keep the rate (more than {LATE_OVERRUN_PCT:g} % of samples a period "
+                 "late, or reported late by the DAQ)")
+    if str(figures.get("clock", "pc")) != "pc":
+        text += f"; paced by {figures['clock']}"
     if figures.get("loop_tuning"):
         text += f"; os: {figures['loop_tuning']}"
     return text

@@ -9,6 +9,8 @@ path (:mod:`hilbench.rig.safety`), never directly.
 * :class:`Sensor` returns its channels (name -> physical value) when read.
 * :class:`Player` runs a whole waveform on the device (a controller's wave generator and data
   recorder) because per-sample serial I/O cannot reach kHz rates.
+* :class:`SampleClock` is a DAQ whose hardware sample clock can pace the fixed-rate loop: the
+  runner waits for its next tick instead of its own deadline (:mod:`hilbench.runners.pacing`).
 * :class:`LockstepPlant` is a simulated backend: it processes a block of applied commands and
   returns every measured channel for those samples, sample-exact with stepping it one by one.
 * :class:`DriverEntry` is what a device family registers under the ``hilbench.drivers`` entry-point
@@ -56,6 +58,23 @@ class Sensor(Device, Protocol):
 class Player(Device, Protocol):
     def play(self, waveform: np.ndarray, rate_hz: float) -> Mapping[str, np.ndarray]:
         """Run ``waveform`` (actuator unit) at ``rate_hz`` on the device; return the recorded channels."""
+        ...
+
+
+@runtime_checkable
+class SampleClock(Device, Protocol):
+    def sample_clock_hz(self) -> float | None:
+        """Hz of the sample clock that times the device's per-sample I/O in its present mode; None
+        when nothing does (software-timed, on demand)."""
+        ...
+
+    def sample_clock(self) -> str:
+        """What the clock is, in a few words, for the recording (e.g. the DAQmx timing it uses)."""
+        ...
+
+    def wait_for_next_sample_clock(self) -> bool:
+        """Return at the clock's next tick; True when the device reports the tick had already gone
+        by when the wait began (the loop was late). The next ``read()`` returns that tick's sample."""
         ...
 
 

@@ -1,9 +1,12 @@
-"""The fixed-rate loop: one run on per-sample devices, paced by the wall clock.
+"""The fixed-rate loop: one run on per-sample devices, paced by a clock.
 
-Each sample ``k`` of a run is due at the absolute deadline ``t0 + k / fs`` (``time.perf_counter_ns``;
-absolute, so a late sample does not push the later ones back: the loop catches up). The loop sleeps
-until ``spin_s`` before the deadline, then spins to it (``time.sleep`` overshoots by tens of
-microseconds on Linux; spinning is exact but burns the core). Then, holding the rig's I/O lock, the
+The clock (:mod:`hilbench.runners.pacing`) is the PC's or a DAQ's. On the PC's, each sample ``k``
+of a run is due at the absolute deadline ``t0 + k / fs`` (``time.perf_counter_ns``; absolute, so a
+late sample does not push the later ones back: the loop catches up); the loop sleeps until ``spin_s``
+before the deadline, then spins to it (``time.sleep`` overshoots by tens of microseconds on Linux;
+spinning is exact but burns the core). On a DAQ whose sample clock times the rig's I/O (hardware-timed
+single point), the loop waits for the DAQ's next tick instead, through the driver, and the DAQ's own
+reports of late samples are counted. Then, holding the rig's I/O lock, the
 command goes through the rig's one safety path (:meth:`~hilbench.rig.rig.Rig.apply_value`: clamp,
 slew limit), is written to the actuator, and every sensor device is read once.
 
@@ -13,9 +16,10 @@ run's ``schedule`` attribute; a fit or a plot of a late run sees the rates that 
 ``lateness`` (s): how long after its deadline the sample was taken. A sample later than one period
 is an overrun; the run's attrs keep ``overruns``, ``overrun_pct``, ``late`` (more than
 ``LATE_OVERRUN_PCT`` % overran), ``lateness_p50_s``, ``lateness_p99_s`` and ``lateness_max_s``
-(:mod:`hilbench.recording.lateness`, accumulated by the writer process, not the loop). With ``pace=False`` (emulated rigs in tests,
-whose plant advances one sample per write whatever the time) the loop runs as fast as the devices
-answer and ``lateness`` is NaN: there is no schedule to be late for.
+(:mod:`hilbench.recording.lateness`, accumulated by the writer process, not the loop), and which clock
+paced it (``clock``; with a DAQ's, ``clock_late_samples`` too). Without a clock (``pace=False``:
+emulated rigs in tests, whose plant advances one sample per write whatever the time) the loop runs as
+fast as the devices answer and ``lateness`` is NaN: there is no schedule to be late for.
 
 Interlocks, checked on every sample (any of them stops the run; the runner makes the actuator safe
 and closes the run ``failed`` with the reason, keeping every sample before):
@@ -61,6 +65,7 @@ from hilbench.recording.hdf5 import CANONICAL_CHANNELS, ChannelSpec
 from hilbench.recording.writer_process import StreamedRun
 from hilbench.rig.rig import Rig
 from hilbench.runners.faults import DeviceFault, InterlockTripped, LoopStalled, SafeStop
+from hilbench.runners.pacing import DeviceClock, PcClock
 
 #: default watchdog time: longer than one retried timeout of the drivers' defaults
 DEFAULT_WATCHDOG_S = 2.0
@@ -140,14 +145,14 @@ def run_fixed_rate(
     safe: SafeStop,
     stop: Any,
     chunk_samples: int,
-    pace: bool = True,
+    clock: PcClock | DeviceClock | None = None,
     watchdog_periods: int | None = None,
-    spin_s: float = DEFAULT_SPIN_S,
     on_chunk: Callable[[int], None] | None = None,
     law: LoopLaw | None = None,
 ) -> int:
     """Play one run sample by sample; returns the samples recorded. Raises on a fault.
-    With ``law``, the run's source is a reference and the law computes each command (closed loop).
+    ``clock`` paces it (:mod:`hilbench.runners.pacing`; None: unpaced). With ``law``, the run's
+    source is a reference and the law computes each command (closed loop).
 
     ``safe.io_lock`` is held around each sample's device I/O, so the watchdog's ``rig.stop`` never
     talks to a device at the same time as the loop. ``stop`` is the deferred-interrupt flag, checked
@@ -155,8 +160,9 @@ def run_fixed_rate(
     """
     fs = rig.sample_rate_hz
     period_s = 1.0 / fs
-    period_ns = 1e9 / fs
-    spin_ns = int(spin_s * 1e9)
+    pace = clock is not None
+    wait = clock.wait if clock is not None else None
+    clock_name = getattr(clock, "name", "")
     lock = safe.io_lock
     assert lock is not None
     periods = watchdog_periods if watchdog_periods is not None else max(50, math.ceil(DEFAULT_WATCHDOG_S * fs))
@@ -186,7 +192,6 @@ def run_fixed_rate(
     law_command = law.command if law is not None else None
     law_commit = law.commit if law is not None else None
     perf = time.perf_counter_ns
-    sleep = time.sleep
     nan = math.nan
 
     done = 0
@@ -196,7 +201,7 @@ def run_fixed_rate(
         gc.collect()
         gc.freeze()
         gc.disable()
-    t0 = 0
+    started = False
     watchdog.start()
     try:
         for commands in excitation.chunks(fs, chunk_samples):
@@ -208,22 +213,19 @@ def run_fixed_rate(
             if not pace:
                 late[:m] = nan
             cols = [[block[rows[c]] for c, *_ in plan] for _, _, _, plan in reads]
-            if not t0:  # the first deadline one period after everything for the first chunk is ready
-                t0 = perf() + int(period_ns)
+            if not started and clock is not None:  # everything for the first chunk is ready
+                clock.start()
+                started = True
             j = 0
             try:
                 for j in range(m):
                     k = done + j
-                    if pace:
-                        deadline = t0 + int(k * period_ns)
-                        wait = deadline - perf() - spin_ns
-                        if wait > 0:
-                            sleep(wait * 1e-9)
-                        now = perf()
-                        while now < deadline:
-                            now = perf()
-                        late[j] = (now - deadline) * 1e-9
-                        taken[j] = (now - t0) * 1e-9
+                    if wait is not None:
+                        try:
+                            taken[j], late[j], now = wait(k)
+                        except Exception as exc:  # a DAQ's clock wait is a device call
+                            raise DeviceFault(clock_name, rig.config.devices.get(clock_name, {}).get("driver", ""),
+                                              f"wait for its sample clock at sample {k}", exc) from exc
                     else:
                         now = perf()
                         taken[j] = k / fs  # unpaced: no schedule to keep, the sample index is the time

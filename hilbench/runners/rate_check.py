@@ -10,6 +10,10 @@ naming the slowest device, the measured times and the highest rate they can hold
 The rate they can hold is ``HEADROOM / p99`` of the round trip: the loop's own work (the safety path,
 a compensator, appending to the recording) comes on top of the devices' time, and a p99 at the period
 would already overrun about 1 % of the samples.
+
+When a DAQ's sample clock paces the loop (:func:`hilbench.runners.pacing.device_clock`), each timed
+round trip starts at the clock's tick, as in the run: the wait for the tick is not timed (it is the
+period, not the devices' work), the write and the reads after it are, and the rule is the same.
 """
 
 from __future__ import annotations
@@ -35,6 +39,8 @@ class RoundTrips:
     samples: int
     total_s: np.ndarray
     per_device_s: dict[str, np.ndarray] = field(default_factory=dict)
+    #: the device whose sample clock paced the round trips ('' = none: back to back)
+    clock: str = ""
 
     def p(self, q: float, values: np.ndarray | None = None) -> float:
         return float(np.quantile(self.total_s if values is None else values, q))
@@ -51,7 +57,9 @@ class RoundTrips:
     def describe(self) -> dict[str, Any]:
         return {"samples": self.samples, "round_trip_p50_s": self.p(0.5), "round_trip_p99_s": self.p(0.99),
                 "max_rate_hz": self.max_rate_hz,
-                "devices": {d: {"p50_s": self.p(0.5, v), "p99_s": self.p(0.99, v)} for d, v in self.per_device_s.items()}}
+                "devices": {d: {"p50_s": self.p(0.5, v), "p99_s": self.p(0.99, v)} for d, v in self.per_device_s.items()},
+                "paced_by": f"device {self.clock}: each round trip from its sample clock's tick" if self.clock
+                else "none: back to back"}
 
     def line(self) -> str:
         def ms(s: float) -> str:
@@ -64,14 +72,20 @@ class RoundTrips:
 
 def time_round_trips(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:
     """Time ``samples`` round trips of a rig of per-sample devices, holding the actuator still."""
+    from hilbench.runners.pacing import device_clock
+
     write = rig.actuator_device.write
     value = rig.last_applied
     reads = [(name, device.read) for name, device, _ in rig.sensor_reads]
     act = rig.actuator_name
+    clock = device_clock(rig)
+    tick = clock[1].wait_for_next_sample_clock if clock is not None else None
     total = np.empty(samples)
     each = {act: np.empty(samples), **{name: np.empty(samples) for name, _ in reads}}
     perf = time.perf_counter_ns
     for k in range(samples):
+        if tick is not None:
+            tick()
         t0 = perf()
         write(value)
         t1 = perf()
@@ -81,7 +95,7 @@ def time_round_trips(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:
             read()
             each[name][k] = (perf() - ta) * 1e-9
         total[k] = (perf() - t0) * 1e-9
-    return RoundTrips(samples, total, each)
+    return RoundTrips(samples, total, each, clock[0] if clock is not None else "")
 
 
 def require_rate(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:

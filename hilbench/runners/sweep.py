@@ -4,7 +4,8 @@ One entry point, :func:`run_plan`; the rig chooses how samples are produced (``m
 
 * ``lockstep`` - a simulated rig: chunks of commands through the plant in blocks (optionally paced
   to real time with ``realtime``);
-* ``fixed-rate`` - per-sample devices: a loop paced by the wall clock with absolute deadlines,
+* ``fixed-rate`` - per-sample devices: a loop paced by the PC's clock with absolute deadlines, or
+  by a DAQ's sample clock when one times the devices' I/O (:mod:`hilbench.runners.pacing`),
   lateness recorded per sample, a watchdog, sensor interlocks (:mod:`hilbench.runners.fixed_rate`);
 * ``block`` - a device with a wave generator and data recorder plays each run whole
   (:mod:`hilbench.runners.block`).
@@ -45,6 +46,7 @@ from hilbench.runners.block import can_play, run_block
 from hilbench.runners.faults import DeviceFault, SafeStop, summary
 from hilbench.runners.fixed_rate import DEFAULT_SPIN_S, LoopLaw, lateness_channel, run_fixed_rate
 from hilbench.runners.loop_tuning import LoopTuning, apply_tuning, spin_for
+from hilbench.runners.pacing import clock_for
 
 #: progress(run_index, run_label, samples_done_in_run, samples_in_run)
 Progress = Callable[[int, str, int, int], None]
@@ -167,6 +169,10 @@ def run_plan(
     if not reads_reference:
         check_plan(runs, rig.actuator, rig.sample_rate_hz)
     realtime = rig.config.realtime if realtime is None else realtime
+    if mode == "fixed-rate" and pace:
+        from hilbench.runners.pacing import device_clock
+
+        device_clock(rig)  # a DAQ clock at another rate than the rig's is refused before anything moves
     if check_rate and mode == "fixed-rate" and pace:
         from hilbench.runners.rate_check import require_rate
 
@@ -249,14 +255,17 @@ def run_plan(
                         tuning = LoopTuning(rig.config.lock_memory, rig.config.loop_priority, rig.config.loop_cpu)
                         restore = apply_tuning(tuning) if pace else None
                         stats_attrs["loop_tuning"] = tuning.summary() if pace else "none (unpaced)"
+                        clock = clock_for(rig, pace, spin_for(1.0 / rig.sample_rate_hz, DEFAULT_SPIN_S,
+                                                              tuning.realtime))
                         try:
                             done = run_fixed_rate(
-                                rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, pace=pace,
-                                watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law,
-                                spin_s=spin_for(1.0 / rig.sample_rate_hz, DEFAULT_SPIN_S, tuning.realtime))
+                                rig, exc, run, safe=safe, stop=stop, chunk_samples=chunk_samples, clock=clock,
+                                watchdog_periods=watchdog_periods, on_chunk=on_chunk, law=law)
                         finally:
                             if restore is not None:
                                 restore()
+                            if clock is not None:
+                                stats_attrs.update(_clock_attrs(clock, run.n_samples))
                     elif mode == "block":
                         done = run_block(rig, exc, run, stop=stop, chunk_samples=chunk_samples, on_chunk=on_chunk,
                                          law=law)
@@ -302,6 +311,17 @@ def run_plan(
         if stream is not None:
             stream.close()
     return result
+
+
+def _clock_attrs(clock: Any, samples: int) -> dict[str, Any]:
+    """Which clock paced a fixed-rate run; a DAQ's late reports above LATE_OVERRUN_PCT % mark it late."""
+    from hilbench.recording.lateness import LATE_OVERRUN_PCT
+
+    attrs = clock.attrs()
+    reported = int(attrs.get("clock_late_samples", 0))
+    if samples and 100.0 * reported / samples > LATE_OVERRUN_PCT:
+        attrs["late"] = True
+    return attrs
 
 
 def _tell_recorded(error: BaseException, recorded: str, device: str = "") -> None:

@@ -63,7 +63,9 @@ Rig = tuple[Any, Any, TinyWorld]
 
 @pytest.fixture
 def make_rig() -> Iterator[Callable[..., Rig]]:
-    """Start an emulator and open the driver on it with the given settings; all closed afterwards."""
+    """Start an emulator and open the driver on it with the given settings; all closed afterwards.
+    The emulated device is a PCIe multifunction DAQ by default (C Series modules have no hardware-timed
+    single point: the tests of NI 9263/9234 limits name those products)."""
     from drivers.ni_daqmx import DRIVER
 
     opened: list[Any] = []
@@ -73,7 +75,8 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
         settings = DRIVER.complete({"url": "grpc://127.0.0.1:0", "ai_current_channel": "cDAQ1Mod2/ai1",
                                     "amplifier_gain_a_per_v": 0.5, "output_um_per_v": 10.0,
                                     "output_offset_um": 1.0, "current_monitor_v_per_a": 2.0,
-                                    "sample_rate_hz": 200.0, "timeout_s": 0.5, "rpc_margin_s": 0.5} | table)
+                                    "sample_rate_hz": 200.0, "timeout_s": 0.5, "rpc_margin_s": 0.5,
+                                    "emulated_ao_product": "PCIe-6363", "emulated_ai_product": "PCIe-6363"} | table)
         emulator = DRIVER.emulator(settings, world)
         opened.append(emulator)
         device = DRIVER.open({**settings, "url": emulator.url})
@@ -92,7 +95,7 @@ def test_open_creates_an_ao_and_an_ai_task_with_hardware_timed_single_point_timi
     ao = next(t for t in emulator.tasks.values() if t.kind() == "ao")
     ai = next(t for t in emulator.tasks.values() if t.kind() == "ai")
     assert [c.physical for c in ao.channels] == ["cDAQ1Mod1/ao0"]
-    assert [(c.min_v, c.max_v) for c in ao.channels] == [(-10.0, 10.0)]  # the NI 9263's range
+    assert [(c.min_v, c.max_v) for c in ao.channels] == [(-10.0, 10.0)]  # the AO range asked for
     assert [c.physical for c in ai.channels] == ["cDAQ1Mod2/ai0", "cDAQ1Mod2/ai1"]
     assert (ao.mode, ao.rate_hz, ai.mode, ai.rate_hz) == (HWTSP, 200.0, HWTSP, 200.0)
     assert not ao.running and not ai.running  # started by the first write or read, not at open
@@ -187,6 +190,91 @@ def test_a_value_outside_the_ao_range_is_refused_before_anything_is_sent(make_ri
     with pytest.raises(DeviceError, match=r"outside the AO range -10\.\.10 V"):
         device.write(6.0)  # 12 V
     assert len(emulator.calls) == before
+
+
+# -- C Series limits: the NI 9263 / 9234 / 9215 as their specifications say ------------------------------
+C_SERIES = {"emulated_ao_product": "NI 9263", "emulated_ai_product": "NI 9234"}
+
+
+@needs_nidaqmx
+def test_c_series_modules_refuse_hardware_timed_single_point_at_open_with_daqmx_200077(make_rig):
+    """NI-DAQmx Device Considerations, Timing Considerations for C Series Devices: "C Series devices do
+    not support hardware-timed single-point sample mode or Wait for Next Sample Clock"."""
+    with pytest.raises(DeviceError) as caught:
+        make_rig(mode="hw-timed-single-point", **C_SERIES)
+    line = str(caught.value)
+    assert "\n" not in line and "NI-DAQmx error -200077" in line
+    assert "DAQmx_Val_HWTimedSinglePoint" in line and "(NI 9263)" in line  # the AO task is verified first
+
+
+@needs_nidaqmx
+def test_the_ni_9234_runs_51_2_ks_per_s_over_n_and_a_rate_between_is_refused_at_open(make_rig):
+    """NI-9234 Specifications: fs = (13.1072 MHz / 256) / n, n = 1..31; DAQmx coerces a rate up to the
+    next one, which the driver reads back (SampClk.Rate) and refuses unless it is the one asked for."""
+    from drivers.emulators.ni_daqmx import PRODUCTS
+
+    ni9234 = PRODUCTS["NI 9234"]
+    assert [ni9234.rate(51200.0 / n) for n in (1, 2, 25, 31)] == [51200.0, 25600.0, 2048.0, 51200.0 / 31]
+    assert ni9234.rate(1000.0) == pytest.approx(1651.6129, rel=1e-6)  # below the range: its lowest rate
+    assert ni9234.rate(25000.0) == 25600.0  # between two: the next one up
+    with pytest.raises(DeviceError, match=r"sample_rate_hz 1000: DAQmx runs the loop's sample clock of "
+                                          r"cDAQ1Mod2/ai0, cDAQ1Mod2/ai1 at 1651\.61 Hz"):
+        make_rig(mode="ai-clocked", sample_rate_hz=1000.0, **C_SERIES)
+    with pytest.raises(DeviceError, match=r"NI-DAQmx error -200077: .*DAQmx_SampClk_Rate Requested Value: 60000"):
+        make_rig(mode="ai-clocked", sample_rate_hz=60000.0, **C_SERIES)
+    emulator, device, _ = make_rig(mode="ai-clocked", sample_rate_hz=2048.0, **C_SERIES)
+    assert device.sample_clock_hz() == 2048.0 and "TaskControl" in emulator.calls  # verified at open
+
+
+@needs_nidaqmx
+def test_a_play_at_a_rate_the_ni_9234_cannot_run_is_refused_before_anything_moves(make_rig):
+    _, device, world = make_rig(mode="on-demand", **C_SERIES)
+    with pytest.raises(DeviceError, match=r"play at 1000 Hz: DAQmx runs the AI sample clock of .* at 1651\.61 Hz"):
+        device.play(np.linspace(0.0, 1.0, 100), 1000.0)
+    assert world.played == []
+
+
+@needs_nidaqmx
+def test_ai_clocked_the_ni_9215s_sample_clock_paces_the_loop_and_a_late_loop_reads_the_newest_sample(make_rig):
+    """A continuous acquisition read one sample a tick (a cDAQ's per-sample loop): each wait returns at
+    the AI clock's next tick; when the tick came before the wait, DAQmx already holds the samples and
+    the wait says late."""
+    emulator, device, _ = make_rig(mode="ai-clocked", sample_rate_hz=100.0, emulated_ao_product="NI 9263",
+                                       emulated_ai_product="NI 9215")
+    assert device.sample_clock_hz() == 100.0 and "continuous AI" in device.sample_clock()
+    device.write(0.0)
+    device.wait_for_next_sample_clock()  # the acquisition starts: its first sample is there at once
+    before = len(emulator.calls)
+    started = time.monotonic()
+    on_time = 0
+    for k in range(10):
+        on_time += not device.wait_for_next_sample_clock()
+        device.write(0.01 * k)
+        device.read()
+    elapsed = time.monotonic() - started
+    # every on-time wait waited for a tick of its own, 10 ms after the one before on the emulated clock
+    assert elapsed >= 0.01 * (on_time - 1) - 1e-3
+    calls = emulator.calls[before:]
+    assert calls.count("ReadAnalogF64") == 10 + on_time  # all acquired (-1), then the next one when none
+    assert "WaitForNextSampleClock" not in calls and "CfgSampClkTiming" not in calls
+    device.write(0.4)  # the world moves; the AO was written on demand
+    time.sleep(0.05)  # five ticks without a wait
+    late_before = device.late
+    assert device.wait_for_next_sample_clock() is True and device.late == late_before + 1
+    assert device.read() == pytest.approx({"output": 10.0, "current": 0.4})  # the newest sample
+    assert device.clock_stats()["samples"] == 12
+
+
+@needs_nidaqmx
+def test_ai_clocked_a_backlog_beyond_daqmxs_buffer_restarts_the_acquisition_and_counts_late(make_rig):
+    emulator, device, _ = make_rig(mode="ai-clocked", sample_rate_hz=200.0, ai_buffer_s=0.05,
+                                   emulated_ai_product="NI 9215")  # a buffer of 10 samples
+    device.write(0.2)
+    device.wait_for_next_sample_clock()
+    time.sleep(0.15)  # 30 ticks: unread samples overwritten
+    assert device.wait_for_next_sample_clock() is True
+    assert emulator.calls.count("StopTask") + emulator.calls.count("TaskControl") >= 2  # stopped and started
+    assert device.read() == pytest.approx({"output": 5.0, "current": 0.2})
 
 
 # -- faults ---------------------------------------------------------------------------------------------
