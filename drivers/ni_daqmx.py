@@ -622,8 +622,9 @@ SETTINGS = (
     Setting("output_um_per_v", float, default=1.0, doc="um of displacement per V at the output AI"),
     Setting("output_offset_um", float, default=0.0, doc="um at 0 V on the output AI"),
     Setting("current_monitor_v_per_a", float, default=1.0, doc="V at the current AI per A of amplifier output"),
-    Setting("mode", str, default="hw-timed-single-point",
-            doc="per-sample write/read: hw-timed-single-point or ai-clocked (a cDAQ; the DAQ clock paces both) or on-demand"),
+    Setting("mode", str, default="on-demand",
+            doc="per-sample write/read: on-demand (any module; the PC paces), hw-timed-single-point (an "
+                "X Series board; not C Series modules) or ai-clocked (a cDAQ: the AI module's clock paces)"),
     Setting("sample_rate_hz", float, default=1000.0, doc="Hz, sample clock of the per-sample tasks (the rig's rate)"),
     Setting("ai_buffer_s", float, default=10.0, doc="s of samples DAQmx buffers in ai-clocked mode"),
     Setting("start_trigger", str, default="", doc="terminal the play AI task starts on ('' = /CHASSIS/ao/StartTrigger)"),

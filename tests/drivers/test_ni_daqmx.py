@@ -76,7 +76,8 @@ def make_rig() -> Iterator[Callable[..., Rig]]:
                                     "amplifier_gain_a_per_v": 0.5, "output_um_per_v": 10.0,
                                     "output_offset_um": 1.0, "current_monitor_v_per_a": 2.0,
                                     "sample_rate_hz": 200.0, "timeout_s": 0.5, "rpc_margin_s": 0.5,
-                                    "emulated_ao_product": "PCIe-6363", "emulated_ai_product": "PCIe-6363"} | table)
+                                    "emulated_ao_product": "PCIe-6363", "emulated_ai_product": "PCIe-6363",
+                                    "mode": "hw-timed-single-point"} | table)
         emulator = DRIVER.emulator(settings, world)
         opened.append(emulator)
         device = DRIVER.open({**settings, "url": emulator.url})
