@@ -95,7 +95,7 @@ def wrong_base(base: FitResult, fitted: Sequence[FitResult | None], noise: float
     evidence = {"validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "p_value": p,
                 "best_effect_rmse": best_effect,
                 "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks, "spec": best.spec,
-                "bases_tried": tried, "current_base": current, "suggested_base": name}
+                "bases_tried": tried, "current_base": current, "suggested_base": name, "replacement": "the other base"}
     return Candidate("base", best.spec, all(checks.values()), gain, sentence, evidence, fitted=best,
                      replaces_model=True)
 
