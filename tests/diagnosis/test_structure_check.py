@@ -112,3 +112,24 @@ def test_no_structure_below_the_resonance_and_the_reason_says_why():
     assert not found.applies
     assert "outside the drive's band" in found.reason and "40 Hz" in found.reason, found.reason
     assert found.evidence["drive_power_share"] < 0.01
+
+
+def test_the_summary_says_how_to_switch_to_a_replacing_candidate_and_how_to_add_an_effect():
+    """A candidate that replaces the model (the structure, another base) is reached with --model or
+    --auto; ``--add restoring-force`` is no effect to add."""
+    from hilbench.cli.summaries import diagnosis_summary_lines
+
+    metrics = {"rmse": 1.0, "erms_pct": 10.0}
+
+    def doc(effect: str, evidence: dict) -> dict:
+        cand = {"effect": effect, "significant": True, "expected_gain": 0.9, "explanation": "why",
+                "evidence": {**evidence, "failed_checks": []}}
+        return {"spec": "bouc-wen", "metrics": {"validation": metrics, "train": metrics}, "where": [],
+                "effects": [cand], "untestable": []}
+
+    switch = doc(STRUCTURE, {"spec": "bouc-wen+restoring-force", "replacement": "the structure"})
+    verdict = next(line for line in diagnosis_summary_lines(switch) if line.startswith("verdict"))
+    assert "--model 'bouc-wen+restoring-force' or --auto switches to it" in verdict, verdict
+    add = doc("dynamics", {"spec": "bouc-wen+dynamics"})
+    verdict = next(line for line in diagnosis_summary_lines(add) if line.startswith("verdict"))
+    assert "--add dynamics or --auto adds it" in verdict, verdict
