@@ -111,8 +111,12 @@ def diagnosis_summary_lines(d: dict[str, Any]) -> list[str]:
     found = [e for e in d["effects"] if e["significant"]]
     if found:
         best = found[0]
+        ev = best.get("evidence") or {}
+        # another base or a structure replaces the model (its evidence names the replacement): no --add
+        how = (f"--model '{ev['spec']}' or --auto switches to it" if "replacement" in ev and "spec" in ev
+               else f"--add {best['effect'].split('+')[0]} or --auto adds it")
         lines.append(f"verdict: {best['effect']} is missing (validation rmse {-100 * best['expected_gain']:+.1f} % "
-                     f"with it); --add {best['effect'].split('+')[0]} or --auto adds it")
+                     f"with it); {how}")
     else:
         lines.append("verdict: no missing effect is significant" + (" (some could not be tested)" if d["untestable"] else ""))
     if d["effects"]:

@@ -37,11 +37,13 @@ def with_base(spec: str, base: str) -> str:
 
 def alternatives(base: FitResult, noise: float) -> list[str]:
     """The specs :func:`wrong_base` fits: ``base.spec`` on every base of another family, none when the
-    validation error is near the noise (the loop shape is right enough) or the base is memoryless
-    (it needs hysteresis, not another loop)."""
+    validation error is near the noise (the loop shape is right enough), the base is memoryless
+    (it needs hysteresis, not another loop) or the model is a structure (restoring-force)."""
     current = split_spec(base.spec)[0][0]
     if not base.metrics["validation"]["rmse"] > T.WRONG_BASE_NOISE_FACTOR * noise or current == "linear":
         return []
+    if base.model.structure is not None:
+        return []  # the structure's kernel holds one law (Bouc-Wen): no other family to put in its place
     return [with_base(base.spec, b) for b in ALTERNATIVE_BASES if b != current]
 
 
@@ -93,8 +95,9 @@ def wrong_base(base: FitResult, fitted: Sequence[FitResult | None], noise: float
     evidence = {"validation_rmse": [old_v, new_v], "train_rmse": [old_t, new_t], "p_value": p,
                 "best_effect_rmse": best_effect,
                 "blocks_improved": [better, blocks], "noise_floor": noise, "checks": checks, "spec": best.spec,
-                "bases_tried": tried, "current_base": current, "suggested_base": name}
-    return Candidate("base", best.spec, all(checks.values()), gain, sentence, evidence, fitted=best)
+                "bases_tried": tried, "current_base": current, "suggested_base": name, "replacement": "the other base"}
+    return Candidate("base", best.spec, all(checks.values()), gain, sentence, evidence, fitted=best,
+                     replaces_model=True)
 
 
 def finer_base_check(paths: Any, base: FitResult, other: Candidate, cands: Sequence[Candidate],
@@ -115,7 +118,7 @@ def finer_base_check(paths: Any, base: FitResult, other: Candidate, cands: Seque
 
     if not other.significant:
         return
-    refits = [c for c in cands if c.fitted is not None and c.effect != "base"]
+    refits = [c for c in cands if c.fitted is not None and not c.replaces_model]
     best = min(refits, key=lambda c: c.fitted.metrics["validation"]["rmse"], default=None)
     better = best is not None and best.fitted.metrics["validation"]["rmse"] < base.metrics["validation"]["rmse"]
     spec = finer_spec(best.fitted.spec if better else base.spec)

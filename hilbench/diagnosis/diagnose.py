@@ -26,6 +26,9 @@
   judges and ranks them by the measured fractional drop of validation rmse (``expected_gain``; a tie
   is decided by the residual's pattern, :mod:`hilbench.diagnosis.verdict`), and lists the effects the
   data cannot test with the reason;
+* when the data show mechanics (a resonance the drive excites and the error follows), tries the
+  structure with the hysteresis inside them, ``bouc-wen+restoring-force``, judged as another base is
+  (:mod:`hilbench.diagnosis.structure_check`, decision 0103);
 * when no single effect carries over but some explained training, judges pairs of them together
   (candidate ``a+b``, :mod:`hilbench.diagnosis.pairs`): creep after each load step;
 * when nothing is significant on every validation row and some of them drive past training's input
@@ -54,6 +57,7 @@ from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.replication import replicate
 from hilbench.diagnosis.resolution import check_resolution
 from hilbench.diagnosis.rows import noise_floor, residual_rows
+from hilbench.diagnosis.structure_check import structure_check
 from hilbench.diagnosis.testability import testable
 from hilbench.diagnosis.ranking import rank
 from hilbench.diagnosis.verdict import Candidate, judge, verdict
@@ -142,19 +146,27 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
     # every significant refit on the best base shape any of them found (diagnosis/base_polish.py)
     cands = shared_base_shape(paths, base, cands, every, noise, kw, plans, jobs)
     cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
-    other_base = wrong_base(base, other_fits, noise, [c.evidence["validation_rmse"][1] for c in cands])
+    untestable = list(plan.untestable)
+    # the hysteresis inside the mechanics, when the data show a resonance the drive excites (decision 0103)
+    structure = structure_check(paths, base, cands, noise, kw, untestable)
+    effect_rmse = [c.evidence["validation_rmse"][1] for c in cands]
+    if structure is not None:
+        cands.append(structure)
+        if structure.significant:  # another base must beat the structure too
+            effect_rmse.append(structure.evidence["validation_rmse"][1])
+    other_base = wrong_base(base, other_fits, noise, effect_rmse)
     if other_base is not None:
         finer_base_check(paths, base, other_base, cands, kw)  # not the current family at too few operators
         cands.append(other_base)
-    if other_base is None or not other_base.significant:
-        # gains the validation rows are too short to confirm alone; not on a base the data refuse,
-        # where the report is the base, not small effects on top of it (issue item 5)
+    if not any(c.replaces_model and c.significant for c in cands):
+        # gains the validation rows are too short to confirm alone; not on a base (or structure) the
+        # data refuse, where the report is the replacement, not small effects on top of it (issue item 5)
         replicate(paths, base, cands, kw, jobs)
     rank(cands)
     check_resolution(paths, base, cands, noise, kw, jobs)  # the two leaders' order on a finer base
     cands = _within_reach_if_nothing(base, cands, noise, plans)
     base.notes.extend(n for n in plan.notes if n not in base.notes)  # what the training rows cannot identify
-    return Diagnosis(base.spec, base, where(rows), cands, plan.untestable, noise=noise)
+    return Diagnosis(base.spec, base, where(rows), cands, untestable, noise=noise)
 
 
 def _within_reach_if_nothing(base: FitResult, cands: list[Candidate], noise: float,

@@ -44,8 +44,8 @@ _JOINT_SIGNATURE_KEYS = ("corr_e_channel", "explained_by_channel", "signature")
 
 
 def _single(c: Candidate) -> bool:
-    """A single effect judged on the user's split (not the base check, not a rate calibration, not a pair)."""
-    return (c.fitted is not None and c.effect != "base" and "+" not in c.effect
+    """A single effect judged on the user's split (not the base or structure check, not a rate calibration, not a pair)."""
+    return (c.fitted is not None and not c.replaces_model and "+" not in c.effect
             and "rate_calibration" not in c.evidence and "train_gain" in c.evidence)
 
 

@@ -96,9 +96,9 @@ DELAY_AND_LAG = frozenset({"delay", "dynamics"})
 
 
 def reorderable(c: Candidate) -> bool:
-    """A significant refit of one effect that the ranking may reorder (not a pair, the base check
+    """A significant refit of one effect that the ranking may reorder (not a pair, the base or structure check
     or a refit calibrated across drive rates, whose spec carries the calibration)."""
-    return (c.significant and c.fitted is not None and "pair" not in c.evidence and c.effect != "base"
+    return (c.significant and c.fitted is not None and "pair" not in c.evidence and not c.replaces_model
             and "rate_calibration" not in c.evidence)
 
 

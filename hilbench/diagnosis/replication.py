@@ -65,10 +65,10 @@ def replication_level() -> float:
 
 def needs_replication(c: Candidate) -> bool:
     """Failed the block test and nothing else, at a validation p below :func:`replication_level`;
-    judged on the user's split (not a rate calibration, whose rows are other runs, nor the base check)."""
+    judged on the user's split (not a rate calibration, whose rows are other runs, nor the base or structure check)."""
     checks = c.evidence.get("checks") or {}
     failed = [k for k, ok in checks.items() if not ok]
-    return (not c.significant and failed == [BLOCK_CHECK] and c.fitted is not None and c.effect != "base"
+    return (not c.significant and failed == [BLOCK_CHECK] and c.fitted is not None and not c.replaces_model
             and "rate_calibration" not in c.evidence
             and float(c.evidence.get("p_value", 1.0)) < replication_level())
 

@@ -241,10 +241,25 @@ def _few_training_loops(ctx: DataContext) -> str | None:
             "error reflects the training data more than a missing effect; train on a run with loops (--train)")
 
 
+def _shared_channels(result: FitResult) -> list[str] | None:
+    """The auxiliary channels every run with data records (None: no run has data)."""
+    channels = None
+    for r in result.runs:
+        if len(r.data):
+            channels = list(r.data.aux) if channels is None else [c for c in channels if c in r.data.aux]
+    return channels
+
+
 def testable(spec: str, result: FitResult) -> Testability:
     """Effects to try (not in ``spec``) and the untestable ones with the reason."""
     parts = split_spec(spec)
     have = {name for name, _ in parts}
+    structure = result.model.structure
+    if structure is not None:
+        # one state equation (restoring-force): its mechanics are the dynamics, and nothing is added to it
+        names = [e.name for e in E.EFFECTS.values()] + [c for c in _shared_channels(result) or []]
+        return Testability([], [{"effect": name, "reason": f"{spec!r} is a whole model ({structure.name}), which "
+                                 "takes no other effect"} for name in names if name not in have])
     ex = excitation(result)
     ex_train = excitation(result, "train")
     ctx = DataContext(parts[0][0], result, ex, ex_train, None, "")
@@ -254,10 +269,7 @@ def testable(spec: str, result: FitResult) -> Testability:
     note = _few_training_loops(ctx)
     if note:
         out.notes.append(note)
-    channels = None
-    for r in result.runs:
-        if len(r.data):
-            channels = list(r.data.aux) if channels is None else [c for c in channels if c in r.data.aux]
+    channels = _shared_channels(result)
     candidates = [(e.name, e) for e in E.EFFECTS.values()] + [(c, E.AUX_CHANNEL) for c in channels or []]
     for name, effect in candidates:
         if name in have:

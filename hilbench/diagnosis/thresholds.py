@@ -169,3 +169,12 @@ RESOLUTION_FACTOR = 3
 #: under ``pmpi``: the lag validated 0.85 against 0.30 um, the delay 0.19 against 0.14), so the
 #: finer base would be a worse fit, not a finer one (decision 0068).
 PMPI_RESOLUTION_FACTOR = 2
+
+#: The structure with the hysteresis inside the mechanics is tried only on a resonance: second-order
+#: dynamics whose magnitude peaks, zeta below 1/sqrt(2) (hilbench/diagnosis/structure_check.py) ...
+MECHANICS_MAX_ZETA = 1.0 / 2.0**0.5
+#: ... that the drive excites: this share of the input's power within an octave of the natural
+#: frequency (a broadband drive across it puts tens of percent there, 0.42 on the Bouc-Wen
+#: benchmark's 5-150 Hz multisine around 40 Hz; a triangle's corners ringing a resonance 30 times
+#: faster ~1e-4; below resonance the oscillator is its static map, decision 0103).
+MECHANICS_DRIVE_SHARE = 0.1

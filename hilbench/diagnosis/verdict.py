@@ -43,6 +43,9 @@ class Candidate:
     evidence: dict[str, Any]
     fitted: FitResult | None = field(default=None, repr=False)  # the refit, reused by --auto
     unit: str = field(default="", repr=False)  # the output's unit, for the reasons' text
+    #: the spec replaces the model (another base, another structure) instead of adding one effect
+    #: to it: never paired, reordered by the tie rules nor replicated
+    replaces_model: bool = field(default=False, repr=False)
 
     def failed_checks(self) -> list[dict[str, Any]]:
         """Why the verdict is what it is: :func:`failed_checks` of the checks as they stand now (a
@@ -318,17 +321,22 @@ def check_reason(key: str, ev: dict[str, Any], unit: str = "") -> dict[str, Any]
                      f"{100 * T.CREEP_MIN_DRIFT_REMOVED:g} % that could stand for it")
         return {"check": key, "measured": {"drift_over_rms": drift, "drift_over_noise": z, "drift_removed": removed},
                 "required": required, "text": text}
+    other = str(ev.get("replacement", "the other base"))  # the wrong-base and the structure checks
     if key.startswith("validation_") and key.endswith("x_lower"):  # the wrong-base check
         ratio = old_v / new_v if new_v > 0 else math.inf
         return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
-                "text": f"the other base lowers the validation rmse {ratio:.2g}x, less than the "
+                "text": f"{other} lowers the validation rmse {ratio:.2g}x, less than the "
                         f"{T.WRONG_BASE_RATIO:g}x required"}
     if key.endswith("x_lower_than_any_effect") and "best_effect_rmse" in ev:  # the wrong-base check
         best = float(ev["best_effect_rmse"])
         ratio = best / new_v if new_v > 0 else math.inf
         return {"check": key, "measured": ratio, "required": f">= {T.WRONG_BASE_RATIO:g}",
-                "text": f"the best single effect's validation rmse ({best:.3g}{u}) is {ratio:.2g}x the other base's "
+                "text": f"the best single effect's validation rmse ({best:.3g}{u}) is {ratio:.2g}x {other}'s "
                         f"({new_v:.3g}{u}), less than the {T.WRONG_BASE_RATIO:g}x required"}
+    if key == "fit_healthy":  # the structure check: its free run or weights flagged (hilbench.identify.health)
+        reasons = (ev.get("health") or {}).get("reasons") or []
+        return {"check": key, "measured": reasons, "required": "no health flag",
+                "text": f"{other}'s fit is flagged: {reasons[0] if reasons else 'see its health'}"}
     if "x_lower_than_a_finer_" in key and "finer_base" in ev:  # the wrong-base check on a finer current base
         finer = float(ev["finer_base"]["validation_rmse"])
         ratio = finer / new_v if new_v > 0 else math.inf

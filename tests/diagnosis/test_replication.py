@@ -17,8 +17,9 @@ from hilbench.diagnosis.verdict import Candidate, check_reason
 
 
 def _candidate(checks: dict[str, bool], p: float, effect: str = "creep", **evidence) -> Candidate:
+    # the base check and the structure check replace the model, as base_check and structure_check build them
     return Candidate(effect, f"pi+{effect}", all(checks.values()), 0.2, "", {"checks": checks, "p_value": p, **evidence},
-                     fitted=object())
+                     fitted=object(), replaces_model=effect in ("base", "restoring-force"))
 
 
 FAILED_BLOCKS = {"gain_over_10pct": True, "train_and_validation_agree": True, BLOCK_CHECK: False, "error_above_noise": True}
@@ -35,6 +36,7 @@ def test_only_a_candidate_that_failed_the_block_test_alone_near_the_level_is_rep
     assert not needs_replication(_candidate({**FAILED_BLOCKS, "train_and_validation_agree": False}, 0.05))
     assert not needs_replication(_candidate({k: True for k in FAILED_BLOCKS}, 0.005)), "already significant"
     assert not needs_replication(_candidate(FAILED_BLOCKS, 0.05, effect="base"))
+    assert not needs_replication(_candidate(FAILED_BLOCKS, 0.05, effect="restoring-force"))
     assert not needs_replication(_candidate(FAILED_BLOCKS, 0.05, rate_calibration={}))
     pair = _candidate({**FAILED_BLOCKS, "pair_over_each_single": True}, 0.03, effect="creep+load")
     assert needs_replication(pair), "a pair is judged by the same checks"
