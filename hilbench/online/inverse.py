@@ -232,7 +232,9 @@ class Compensator:
         base = model.base.name
         if method == "auto":
             asym = model.effect("asymmetry") is not None
-            if structure is None or (base == "fpmpi" and asym):
+            # the analytic inverses hold for a map rising over the whole fitted range; a falling one, or
+            # one monotone only on part of it, is solved per sample on its operating range
+            if structure is None or (base == "fpmpi" and asym) or self.range.direction < 0 or not self.range.rising:
                 kind = "general"
             elif base == "fpmpi":
                 kind = "fpmpi"
@@ -262,12 +264,12 @@ class Compensator:
         # the general inverse solves the static map per sample: it needs that map rising, and it
         # brackets its solve by the operating range (outside it the model is extrapolated, and a
         # map that turns over there gives a second, falling root or a rail)
-        if kind == "general" and not self.range.rising:
+        if kind == "general" and not self.range.invertible:
             raise InstabilityError(self.range.not_rising(model.spec, unit),
                                    hint="fit the model on the range you will track in, where the actuator rises")
         # the polynomial kinds too: 004 eq. 16/20 and the I-M clamp hold where the model is known (a
         # cubic fitted on 0..4 V turns over by 13 V, which made eq. 20 fail over the rig's range)
-        on_range = kind == "general" or (kind in ("mpi", "im") and self.range.rising)
+        on_range = kind == "general" or (kind in ("mpi", "im") and self.range.rising and self.range.direction > 0)
         self.bracket = self.range.command if on_range else (lo, hi)
         self._range_notes(kind)
         ke = 0.0
@@ -279,6 +281,7 @@ class Compensator:
         cp: list[float] = [0.0] * K.N_CP
         cp[K.C_US] = us
         cp[K.C_ULO], cp[K.C_UHI] = self.bracket
+        cp[K.C_SIGN] = float(self.range.direction) if kind == "general" else 1.0
         ci = np.zeros(K.N_CI, dtype=np.int64)
         ci[K.CI_KIND] = K.KINDS[kind]
         ci[K.CI_NX] = self.X.size
@@ -535,6 +538,10 @@ class Compensator:
             "the static map's major loop over the operating range (dynamics and delay off, aux channels at their "
             "references)".replace("  ", " "))
         self.notes.extend(r.notes)
+        if r.sub_range:
+            self.notes.append(r.sub_range_note(u))
+        if r.direction < 0 and kind == "general":
+            self.notes.append("the static map falls with the command over the operating range: solved on its sign")
         if kind == "general":
             self.notes.append(f"the general inverse solves within [{self.bracket[0]:.4g}, {self.bracket[1]:.4g}] {u}"
                               .replace("  ", " "))
@@ -549,9 +556,9 @@ class Compensator:
         lo, hi = self.limits
         us = self.CP[K.C_US]
         if self.kind == "general":
-            # the ascending branch's mean slope over the bracket (positive: the range rises)
+            # the ascending branch's mean slope over the bracket, in the solver's sense (positive)
             self._y_span = abs(self.range.output[1] - self.range.output[0])
-            return float(self.range.slope)
+            return float(self.range.direction * self.range.slope)
         if self.kind == "fpmpi":
             v = np.linspace(lo / us, hi / us, 4001)
             x = np.array([K.shaped_input(self.I, self.P, float(t)) for t in v])

@@ -96,7 +96,8 @@ C_SLO = 23  # the command range in s = sgn(v) |v|^(1/q)
 C_SHI = 24
 # (25: unused)
 C_GUARD = 26  # 1: the feedback's reversal guard (the command moves only the way the reference moves)
-N_CP = 27
+C_SIGN = 27  # +1: the static map rises with the command over the bracket; -1: it falls (the general kind)
+N_CP = 28
 
 # -- CX: state --------------------------------------------------------------------------------------------
 S_U = 0  # last command (before the safety path), command units
@@ -280,14 +281,14 @@ def _pi_inverse_checked(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.nd
 @njit(cache=True, _nrt=False)
 def _resid(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
            aux: np.ndarray, target: float, u: float) -> float:
-    """What the solver drives to zero, rising with u."""
+    """What the solver drives to zero, rising with u (a falling map's residual is negated)."""
     kind = CI[CI_KIND]
     if kind == K_GENERAL:
         o = CI[CI_O_XM]
         nx = CI[CI_NX]
         for i in range(nx):
             CX[o + i] = X[i]
-        return model_step(I, P, CX[o : o + nx], u, aux) - target
+        return CP[C_SIGN] * (model_step(I, P, CX[o : o + nx], u, aux) - target)
     us = CP[C_US]
     v = u / us
     if kind == K_FPMPI:
@@ -589,11 +590,12 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         rp = CX[S_RPREV]
         if rp == rp and CX[S_STARTED] != 0.0:
             up = CX[S_UAPP]
-            if heading > rp and u < up:
+            way = CP[C_SIGN] * (heading - rp)  # the way the command follows the reference
+            if way > 0.0 and u < up:
                 u = up
                 CX[S_SAT] = -1.0
                 CX[S_GUARDN] += 1.0
-            elif heading < rp and u > up:
+            elif way < 0.0 and u > up:
                 u = up
                 CX[S_SAT] = 1.0
                 CX[S_GUARDN] += 1.0
@@ -647,8 +649,9 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
                 CX[S_BIAS] = bias
     if CI[CI_PID] != 0 and math.isfinite(y_d):
         e = y_d - y_meas
-        # conditional integration: not while the command is limited in the direction e pushes
-        if not (CX[S_SAT] * e > 0.0):
+        # conditional integration: not while the command is limited in the direction e pushes (the
+        # output's direction is the command's times the map's sense)
+        if not (CX[S_SAT] * CP[C_SIGN] * e > 0.0):
             i = CX[S_I] + CP[C_KIT] * e
             lim = CP[C_ILIM]
             CX[S_I] = min(max(i, -lim), lim)

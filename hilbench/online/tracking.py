@@ -407,7 +407,13 @@ def track(
     if precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
-        _drive(rig, comp, comp.range.fitted[1])
+        if comp.range.sub_range:
+            # a map monotone only on part of its fitted range: a full cycle over that part puts the
+            # model and the actuator on the loop the operating range was traced on
+            _drive(rig, comp, comp.range.command[0])
+            _drive(rig, comp, comp.range.command[1])
+        else:
+            _drive(rig, comp, comp.range.fitted[1])
     aux0 = _first_aux(rig, comp) if comp.channels else None
     # held at the first command until the rig has settled: a run that starts while the approach still
     # rings (or creeps) tracks from a transient the model's memory does not hold
@@ -492,6 +498,10 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     span = comp.range.command
     where = (f"the reachable output range of {comp.model.spec!r} on this rig is [{lo:.4g}, {hi:.4g}] um "
              f"(its static map over [{span[0]:.4g}, {span[1]:.4g}] {comp.unit}{within})").replace(" ,", ",").replace(" )", ")")
+    if comp.range.sub_range:
+        fl, fh = comp.range.fitted
+        where += (f", the part of the fitted [{fl:.4g}, {fh:.4g}] {comp.unit} where one output has one command "
+                  "(the loop turns over elsewhere)").replace("  ", " ")
     if not allow_clip:
         raise UserError(f"the reference leaves what the actuator can reach: {where}; sample {k} (t = {k / fs:.6g} s) "
                         f"asks for {ref[k]:.4g} um ({count} of {ref.size} samples outside)",

@@ -190,9 +190,11 @@ def test_track_reports_health_and_strict_passes_a_healthy_run(fitted: tuple[Path
     assert "operating range" in text.output and "reachable output" in text.output
 
 
-def test_track_refuses_a_model_that_cannot_be_inverted_on_its_operating_range(tmp_path: Path) -> None:
-    """gmm-issf-duhem as simulated loops as a figure eight over +-6 A: duhem-d is refused in one line
-    naming the range it was fitted on (main named the rig's +-6.5 A) and where its map falls."""
+def test_track_refuses_a_reference_beyond_the_monotone_part_of_a_figure_eight(tmp_path: Path) -> None:
+    """gmm-issf-duhem as simulated loops as a figure eight over +-6 A: duhem-d is inverted only on the
+    part of that range where its loop is monotone, and 80 % of the recorded output, far beyond what
+    that part reaches, is refused in one line naming it and the fitted range (main named the rig's
+    +-6.5 A), before anything moves."""
     runner = CliRunner()
     sweep = runner.invoke(app, ["sweep", "gmm-issf-duhem", "-e", "sine:amplitude=6,frequency_hz=1,cycles=2",
                                 "-o", str(tmp_path / "gmm.h5"), "--json", "--quiet"])
@@ -206,7 +208,8 @@ def test_track_refuses_a_model_that_cannot_be_inverted_on_its_operating_range(tm
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in result.output
-    assert "operating range [-6, 6] A" in lines[0] and "falls by" in lines[0] and "6.5" not in lines[0]
+    assert "fitted [-6, 6] A where one output has one command" in lines[0] and "6.5" not in lines[0]
+    assert "reachable output range of 'duhem-d'" in lines[0]
     assert not out.exists()
 
 

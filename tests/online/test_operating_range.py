@@ -4,9 +4,11 @@ and random operating ranges on the simulated piezo so the logic is not tuned to 
 
 The magnetostrictive rig ``gmm-issf-duhem`` as simulated gives a figure-eight loop over +-6 A (the
 output peaks near +1.5 A on the way up and near -2 A on the way down, and falls towards both
-rails): no inverse is defined there, and main's general inverse either refused it naming the rig's
-+-6.5 A (duhem-d) or ran pinned at a rail with 340 % error (pmpi). Both are now refused before
-anything moves, naming the operating range the model was fitted on and where its map falls.
+rails): no inverse is defined over that range, and main's general inverse either refused it naming
+the rig's +-6.5 A (duhem-d) or ran pinned at a rail with 340 % error (pmpi). The compensator now
+works on the part of the fitted range whose own loop is monotone with the widest reach, says so,
+and refuses a reference beyond that reach before anything moves. A rig whose output falls as the
+command rises (its sensor reads the other way) is solved on the map's sign.
 """
 
 from __future__ import annotations
@@ -86,22 +88,40 @@ def test_fit_records_the_input_range_and_the_file_keeps_it(gmm: dict, tmp_path: 
     assert r.fitted == (-6.0, 6.0) and "u_scale" in r.source
 
 
-def test_duhem_d_refusal_names_the_operating_range_not_the_rig(gmm: dict) -> None:
-    """main: 'does not rise over the command range [-6.5, 6.5]' (the rig's, which the model never saw).
-    Now: the range it was fitted on, the branch that falls, by how much and where."""
+def test_duhem_d_works_on_the_monotone_part_of_its_figure_eight(gmm: dict) -> None:
+    """main refused duhem-d outright ('does not rise over the command range [-6.5, 6.5]', the rig's).
+    Now the operating range is the part of the fitted +-6 A whose loop is monotone: 80 % of the
+    recorded output lies far beyond what it reaches and is refused naming that part and its reach;
+    a reference inside the reach is tracked with the commands inside that part."""
+    model = gmm["duhem-d"]
+    comp = Compensator(model, 1000.0, (-6.5, 6.5), unit="A")
+    r = comp.range
+    assert not r.rising and r.sub_range and r.fitted == (-6.0, 6.0)
+    assert -6.0 <= r.command[0] < r.command[1] <= 6.0 and r.command != r.fitted
+    _, up, down = static_major_loop(comp.I, comp.P, np.zeros(1), *r.command)
+    assert np.all(np.diff(r.direction * up) >= -0.005 * (r.output[1] - r.output[0]))
+    assert np.all(np.diff(r.direction * down) >= -0.005 * (r.output[1] - r.output[0]))
+    assert any("not monotone over the fitted [-6, 6] A" in n for n in comp.notes)
     rig_y = gmm["range"]
     with pytest.raises(UserError) as info:
-        track("gmm-issf-duhem", gmm["duhem-d"], _sine(rig_y[0] + 0.1 * (rig_y[1] - rig_y[0]),
-                                                      rig_y[1] - 0.1 * (rig_y[1] - rig_y[0])))
+        track("gmm-issf-duhem", model, _sine(rig_y[0] + 0.1 * (rig_y[1] - rig_y[0]),
+                                            rig_y[1] - 0.1 * (rig_y[1] - rig_y[0])))
     line = info.value.line()
-    assert "operating range [-6, 6] A" in line and "fitted on" in line
-    assert "6.5" not in line
-    assert "branch falls by" in line and " um at " in line
+    assert f"[{r.command[0]:.4g}, {r.command[1]:.4g}] A" in line and "fitted [-6, 6] A" in line
+    assert "6.5" not in line and "reachable output range" in line
+    lo, hi = r.output
+    result = track("gmm-issf-duhem", model, _sine(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo)))
+    assert np.all((result.command >= r.command[0]) & (result.command <= r.command[1]))
+    assert result.health["at_limit_samples"] == 0
+    # the error in um is the model's own (its validation rmse), on a reference 30x smaller than the loop
+    model_rmse_um = model.info["metrics"]["validation"]["rmse"]
+    assert result.metrics["rmse"] < 2.0 * model_rmse_um
 
 
 def test_pmpi_general_is_refused_instead_of_sitting_at_a_rail(gmm: dict, tmp_path: Path) -> None:
     """main: the general inverse of pmpi ran the whole sine at -121.8 um with the command at the rail
-    (340 % error, exit 0). Its static map over +-6 A is a figure eight too: refused before the rig moves."""
+    (340 % error, exit 0). Its static map over +-6 A is a figure eight too: the reference, far beyond
+    what its monotone part reaches, is refused before the rig moves."""
     from hilbench.rig.config import load_rig
     from hilbench.rig.rig import Rig
 
@@ -111,8 +131,55 @@ def test_pmpi_general_is_refused_instead_of_sitting_at_a_rail(gmm: dict, tmp_pat
     with pytest.raises(UserError) as info:
         track(rig, gmm["pmpi"], _sine(rig_y[0] + 0.1 * (rig_y[1] - rig_y[0]), rig_y[1] - 0.1 * (rig_y[1] - rig_y[0])),
               method="general", output=out)
-    assert "does not rise over its operating range [-6, 6] A" in info.value.line()
+    line = info.value.line()
+    assert "fitted [-6, 6] A where one output has one command" in line or "not monotone" in line
     assert rig.last_applied == 0.0 and not out.exists()
+
+
+FALLING = """
+[rig]
+name = "piezo-falling"
+extends = "piezo-pmpi"
+description = "piezo-pmpi whose displacement sensor reads the other way: the output falls as the command rises"
+
+[[sensors]]
+channel = "output"
+unit = "um"
+driver = "sim"
+noise_std = 0.05
+quantization = 0.006
+range = [-200.0, 5.0]
+
+[plant.hysteresis]
+model = "m-play"
+output_scale = -1.0
+linear_gain = 4.770
+thresholds = [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]
+weights = [6.904, 4.1169, 2.4549, 1.4639, 0.8729, 0.5205, 0.3104, 0.1851, 0.1104, 0.0658]
+eta = [0.849, 0.043, 0.276, 0.376, 0.336, 0.443, 0.561, 0.335, 0.158, 0.040]
+"""
+
+
+def test_a_falling_map_is_solved_on_its_sign(tmp_path: Path) -> None:
+    """A rig whose output falls as the command rises: main's operating range asked for a rising map
+    and refused every model. The range is monotone falling, the general inverse solves on the sign,
+    feed-forward keeps the model's bound, designed feedback lowers the error."""
+    rig = tmp_path / "falling.toml"
+    rig.write_text(textwrap.dedent(FALLING), encoding="utf-8")
+    recording = _sweep(rig, "sine:amplitude=5,offset=5,frequency_hz=1,cycles=3", tmp_path / "sweep.h5")
+    fitted = fit(recording, "pmpi")
+    model, val = fitted.model, fitted.metrics["validation"]["erms_pct"]
+    y_lo, y_hi = _output_range(recording)
+    inner = (y_lo + 0.1 * (y_hi - y_lo), y_hi - 0.1 * (y_hi - y_lo))
+    ff = track(rig, model, _sine(*inner))
+    doc = ff.compensator["operating_range"]
+    assert doc["direction"] == "falling" and ff.compensator["method"] == "general"
+    assert ff.health["at_limit_samples"] == 0
+    assert ff.metrics["erms_pct"] <= max(2.0 * val, val + 0.3)
+    fb = track(rig, model, _sine(*inner), feedback=True)
+    assert fb.metrics["erms_pct"] < ff.metrics["erms_pct"]
+    with pytest.raises(UserError, match="reachable output range"):
+        track(rig, model, _sine(doc["reachable_output_um"][0] - 5.0, inner[1]))
 
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
