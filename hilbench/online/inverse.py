@@ -364,6 +364,7 @@ class Compensator:
         if feedback is True or isinstance(feedback, PID):
             self._feedback(feedback)
         cp[K.C_T] = 1.0 / self.fs
+        cp[K.C_GUARD] = 1.0  # feed-forward too: the command reverses only where its target does
         if self.pid is not None:
             ci[K.CI_PID] = 1
             cp[K.C_KP] = self.pid.kp

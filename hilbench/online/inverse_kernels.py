@@ -580,25 +580,30 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         if kind != K_FPMPI and kind != K_MPI:
             CX[S_SAT] = 1.0 if u > b else (-1.0 if u < a else 0.0)
     u = min(max(u, a), b)
-    # the reversal guard: feedback may speed up, slow down or stop the command, but not reverse it
-    # while the reference moves the other way. On a hysteretic actuator each reversal starts a
-    # minor loop at the inverse's steepest slope (1/p0), where the compensated gain is least
-    # known; the sensor's noise fed back would add one every few samples, and a rig whose gain
-    # follows the drive rate reads them as a kHz drive (decision 0080). A held command is a limit
-    # for the conditional integration (S_SAT), so the integrator does not wind against it.
-    if CI[CI_PID] != 0 and CP[C_GUARD] != 0.0:
+    # the reversal guard: the command may speed up, slow down or stop, but not reverse while its
+    # target moves the other way. On a hysteretic actuator each reversal starts a minor loop at the
+    # inverse's steepest slope (1/p0), where the compensated gain is least known; the sensor's noise
+    # fed back would add one every few samples, and a rig whose gain follows the drive rate reads
+    # them as a kHz drive (decision 0080). Feed-forward alone keeps it too: a solve's wobble within
+    # its tolerance where the target turns (flat to 1e-9 um at 50 kHz) is such a reversal, and a model
+    # that counts its drive frequency between turning points read it as 25 kHz and solved at the
+    # rail. A held command is a limit for the conditional integration (S_SAT), so the integrator
+    # does not wind against it.
+    if CP[C_GUARD] != 0.0:
         rp = CX[S_RPREV]
         if rp == rp and CX[S_STARTED] != 0.0:
             up = CX[S_UAPP]
             way = CP[C_SIGN] * (heading - rp)  # the way the command follows the reference
+            held = 0.0
             if way > 0.0 and u < up:
-                u = up
-                CX[S_SAT] = -1.0
-                CX[S_GUARDN] += 1.0
+                held = -1.0
             elif way < 0.0 and u > up:
+                held = 1.0
+            if held != 0.0:
                 u = up
-                CX[S_SAT] = 1.0
                 CX[S_GUARDN] += 1.0
+                if CI[CI_PID] != 0:
+                    CX[S_SAT] = held
         CX[S_RPREV] = heading
     CX[S_U] = u
     CX[S_VPREV] = u / us
