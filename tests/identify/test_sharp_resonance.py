@@ -48,3 +48,20 @@ def test_the_lightest_damping_is_what_the_record_resolves():
     assert starts[-1] == pytest.approx(0.3)
     assert np.allclose(np.diff(np.log10(starts)), 0.5)
     assert start_dampings(0.02, 3.0) == pytest.approx([0.03, 0.0948683, 0.3], rel=1e-5)
+
+
+def test_the_diagnosis_ranks_the_sharp_resonance_first_with_what_auto_adds(tmp_path):
+    """The case the issue describes: on a5b5ec2 dynamics ranked first, but its refit held zeta at
+    0.0292 (true 0.0059) and --auto lowered validation only 1.56x; now 32x (benchmarks/bench_resonance.py).
+    --auto adds the first significant candidate's refit as fitted here (``Candidate.fitted``)."""
+    from hilbench.diagnosis.diagnose import diagnose
+
+    case = RC.draw_resonance_case(2, 20_000)
+    paths, kw = RC.write_resonance_case(case, tmp_path)
+    d = diagnose(paths, case.spec, jobs=1, **kw)
+    first = d.effects[0]
+    assert first.effect == "dynamics" and first.significant
+    before, after = d.metrics["validation"]["rmse"], first.fitted.metrics["validation"]["rmse"]
+    assert before / after >= 3.0, (before, after)
+    zeta = next(p.value for p in first.fitted.model.effect("dynamics").shape() if p.name == "zeta")
+    assert 1 / 1.3 < zeta / case.strength["dynamics"]["zeta"] < 1.3
