@@ -637,8 +637,13 @@ class Dynamics(Component):
                                 ShapeParam(f"angle_{k}", (k + 1) * 0.3, 0.0, math.pi, "rad/sample")]
             self.params += [ShapeParam(f"zero_coef_{j}", 0.0, -2.0, 2.0) for j in range(1, zeros + 1)]
         else:
+            from hilbench.identify.resonance import lightest_damping
+
+            # zeta down to the lightest damping the longest training run resolves (a resonance of a
+            # piezo stack rings with zeta of 0.005 or less; decision 0105)
+            longest = max(part.stop - part.start for part in s.pieces())
             self.params = [ShapeParam("natural_frequency_hz", nyq / 10, nyq / 1e4, 10 * nyq, "Hz", log=True),
-                           ShapeParam("zeta", 0.5, 0.02, 3.0, log=True)]
+                           ShapeParam("zeta", 0.5, min(lightest_damping(longest), 0.02), 3.0, log=True)]
 
     def _searched(self, name: str) -> bool:
         return any(p.name == name and p.upper > p.lower for p in self.params)
@@ -652,15 +657,19 @@ class Dynamics(Component):
 
     def starts_from_residual(self, stretches: list[np.ndarray], fs: float) -> list[dict[str, float]]:
         """second-order: a start at each of the residual spectrum's most prominent peaks (a
-        resonance's ringing, :mod:`hilbench.identify.resonance`), light to moderate damping."""
-        from hilbench.identify.resonance import RESONANCE_PEAKS, START_DAMPING, ringing_frequencies
+        resonance's ringing, :mod:`hilbench.identify.resonance`), with damping ratios half a decade
+        apart from 0.3 down to the search's floor, the lightest the record resolves (decision 0105)."""
+        from hilbench.identify.resonance import (
+            RESONANCE_PEAKS,
+            ringing_frequencies,
+            start_dampings,
+        )
 
         if self.neutral_shape() is None:
             return []
         fn = next(p for p in self.params if p.name == "natural_frequency_hz")
         zeta = next(p for p in self.params if p.name == "zeta")
-        damping = sorted({min(max(z, zeta.lower), zeta.upper) for z in START_DAMPING}) if self._searched("zeta") \
-            else [zeta.value]
+        damping = start_dampings(zeta.lower, zeta.upper) if self._searched("zeta") else [zeta.value]
         starts = []
         for f_peak in ringing_frequencies(stretches, fs, RESONANCE_PEAKS):
             for z in damping:
