@@ -44,6 +44,7 @@ import typer
 
 from hilbench.cli.app import RunProgress, app, default_output, print_json, user_errors
 from hilbench.errors import UserError
+from hilbench.identify.health import ESCAPE_SPANS, escape_spans
 
 #: what the three predictions are, in the JSON document and the report
 COMPARISON = {
@@ -248,10 +249,9 @@ def _stopped(result: Any, out: Path) -> None:
     raise UserError(f"the sweep ended {result.status}; nothing identified", where=str(out))
 
 
-#: A free run farther than this many measured output spans beyond the measured output range has
-#: diverged: no model error is that large; it is an unstable filter, or a polynomial evaluated far
-#: outside the inputs it was fitted on (the piezo stack: 3.6e9 um for a 39 um stroke).
-DIVERGED_SPANS = 10.0
+#: A free run farther than this many measured output spans beyond the measured range has diverged (no
+#: model error is that large): the bound the fit's health check uses, :data:`hilbench.identify.health.ESCAPE_SPANS`.
+DIVERGED_SPANS = ESCAPE_SPANS
 #: The front end is said to run outside its fitted inputs when the scored inputs leave the training
 #: inputs' range by more than this fraction of the scored inputs' span.
 EXTRAPOLATION_FRACTION = 0.1
@@ -262,17 +262,6 @@ STEADY_TOLERANCE = 1.05
 def _re_n2(y: np.ndarray, pred: np.ndarray) -> float:
     n = float(np.linalg.norm(y))
     return 100.0 * float(np.linalg.norm(y - pred)) / n if n > 0 else math.nan
-
-
-def _escape_spans(y: np.ndarray, pred: np.ndarray) -> float:
-    """How far ``pred`` leaves the range of ``y``, in spans of ``y`` (0: within; inf: not finite)."""
-    if pred.size == 0:
-        return 0.0
-    if not np.all(np.isfinite(pred)):
-        return math.inf
-    lo, hi = float(np.min(y)), float(np.max(y))
-    span = max(hi - lo, 1e-12 * max(abs(lo), abs(hi), 1.0))
-    return max(0.0, (float(np.max(pred)) - hi) / span, (lo - float(np.min(pred))) / span)
 
 
 def dynamics_poles(model: Any, sample_rate_hz: float) -> np.ndarray:
@@ -317,7 +306,7 @@ def offline_verdict(y: np.ndarray, hammerstein: np.ndarray, static: np.ndarray |
     unstable = poles.size > 0 and radius >= 1.0
     if unstable:
         reasons.append(f"the dynamics have a pole at |z| = {radius:.6g} (>= 1): the filter is unstable")
-    esc = _escape_spans(yr, hammerstein[rows])
+    esc = escape_spans(yr, hammerstein[rows])
     check["free_run_escape_spans"] = esc
     diverged = esc > DIVERGED_SPANS
     if diverged:
@@ -330,7 +319,7 @@ def offline_verdict(y: np.ndarray, hammerstein: np.ndarray, static: np.ndarray |
     if not (unstable or diverged):
         check.update(status="ok", scored="hammerstein free run", reasons=[])
         return check, hammerstein
-    static_esc = _escape_spans(yr, static[rows]) if static is not None else math.inf
+    static_esc = escape_spans(yr, static[rows]) if static is not None else math.inf
     check["static_escape_spans"] = static_esc if static is not None else None
     if static is not None and static_esc <= DIVERGED_SPANS:
         if diverged and not unstable and poles.size:

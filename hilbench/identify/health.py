@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 #: a free run farther than this many measured spans beyond the measured range has diverged (the
-#: bound ``online`` uses, hilbench.cli.online_commands.DIVERGED_SPANS)
+#: bound ``online`` uses too)
 ESCAPE_SPANS = 10.0
 #: a weight whose lever exceeds this many output spans is extreme for the data's scale
 LEVER_SPANS = 1000.0
