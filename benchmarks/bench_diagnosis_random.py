@@ -6,6 +6,7 @@ it was never tuned to?
     python benchmarks/bench_diagnosis_random.py --cases 200 --auto-cases 60 --workers 2
     python benchmarks/bench_diagnosis_random.py --only 3 17 42        # these case seeds
     python benchmarks/bench_diagnosis_random.py --regressions --workers 2   # every seeded regression
+    python benchmarks/bench_diagnosis_random.py --slow-pair creep+warming --only 0 1 2 --auto  # issue 62
 
 Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
 --cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
@@ -18,7 +19,7 @@ Prints one JSON document on stdout (progress on stderr):
   samples, snr (the hidden effect's contribution rms over the noise rms), ``ranked_first``,
   ``significant`` (the significant effects, best first), ``untestable``, validation rmse of the start
   model; with ``--auto``: ``auto_added`` (the effects added in order) and ``rmse_before``/``rmse_after``
-  and ``reduction`` (before / after); ``error`` when the diagnosis raised (the traceback's last line);
+  and ``reduction`` (before / after), ``two_effect_auto_added_both`` among the rates (issue 62); ``error`` when the diagnosis raised (the traceback's last line);
 * ``confusion_ranked_first``: hidden effect (rows; a two-effect case counts under ``a+b``) vs the
   significant effect ranked first (columns; ``nothing`` when none is significant);
   ``confusion_auto_first``: hidden vs the first effect ``--auto`` added;
@@ -56,14 +57,17 @@ TARGET_REDUCTION = 3.0
 MAX_WORKERS = 2
 
 
-def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
-    """Draw, write and diagnose one case; never raises (an exception is the case's result)."""
+def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None) -> dict[str, Any]:
+    """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``);
+    never raises (an exception is the case's result)."""
     import diagnosis_cases as DC
 
     t0 = time.perf_counter()
     out: dict[str, Any] = {"seed": seed}
     try:
-        case = DC.draw_case(seed)
+        case = DC.draw_case(seed) if slow_pair is None else DC.draw_slow_pair(seed, slow_pair)
+        if slow_pair is not None:
+            out["slow_pair"] = slow_pair
         out.update(kind=case.kind, hidden=case.hidden, forms=case.forms, family=case.family, spec=case.spec,
                    sample_rate_hz=case.sample_rate_hz, input_unit=case.input_unit, runs=len(case.runs),
                    split=case.split, snr=case.snr, noise_pct=100.0 * case.noise_std_um / case.output_span_um)
@@ -114,7 +118,7 @@ def run_case(seed: int, auto: bool, folder: str) -> dict[str, Any]:
 _JSONL: str | None = None
 
 
-def run_case_of(args: tuple[int, bool, str]) -> dict[str, Any]:
+def run_case_of(args: tuple[int, bool, str, str | None]) -> dict[str, Any]:
     """One job of :func:`run` (a tuple: what a Dask task carries)."""
     return run_case(*args)
 
@@ -140,6 +144,12 @@ def _found(r: dict[str, Any]) -> bool:
     if not r.get("significant") or r.get("ranked_first") != r["significant"][0]:
         return False
     return _names_hidden(r["significant"][0], r["hidden"])
+
+
+def _added_all(r: dict[str, Any]) -> bool:
+    """Every hidden effect among the parts of what --auto added."""
+    parts = {p for x in r.get("auto_added") or [] for p in x.split("+")}
+    return set(r["hidden"]) <= parts
 
 
 def _hit(r: dict[str, Any]) -> bool:
@@ -191,6 +201,12 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
         "share_auto_reduction_3x_or_more": rate([x >= 3.0 for x in red]),
         "auto_added_a_hidden_effect_first": rate([bool(r["auto_added"]) and _names_hidden(r["auto_added"][0], r["hidden"])
                                                    for r in hidden if "auto_added" in r]),
+        # issue 62: every hidden effect of a two-effect case among those --auto added (a pair counts
+        # for both its members), and nothing added that is not hidden
+        "two_effect_auto_added_both": rate([_added_all(r) for r in hidden if r["kind"] == "two" and "auto_added" in r]),
+        "two_effect_auto_added_both_and_nothing_else": rate(
+            [_added_all(r) and all(_names_hidden(x, r["hidden"]) for x in r["auto_added"])
+             for r in hidden if r["kind"] == "two" and "auto_added" in r]),
         "n_hidden": len(hidden), "n_clean": len(clean), "n_auto_hidden": len(red), "n_auto_clean": len(auto_clean),
         "n_errors": len(results) - len(ok),
     }
@@ -215,12 +231,12 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
 
 
 def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
-        only: list[int] | None = None, scheduler: str | None = None) -> dict[str, Any]:
+        only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
     n_auto = len(seeds) if auto_cases is None else min(auto_cases, len(seeds))
-    jobs = [(s, auto and i < n_auto, tmp.name) for i, s in enumerate(seeds)]
+    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair) for i, s in enumerate(seeds)]
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
@@ -233,7 +249,7 @@ def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, a
     out: dict[str, Any] = {
         "environment": C.environment(),
         "settings": {"cases": len(seeds), "first_seed": seeds[0] if seeds else None, "workers": workers,
-                     "auto_cases": n_auto if auto else 0},
+                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair},
         **summarize(results, auto),
         "runtime": {"wall_s": wall, "per_case_median_s": statistics.median([r["seconds"] for r in results if "seconds" in r])
                     if any("seconds" in r for r in results) else None,
@@ -260,6 +276,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--regressions", action="store_true",
                     help="the seeded regressions of benchmarks/diagnosis_regressions.py (those the test suite "
                          "leaves out too); the JSON's 'regressions_missed' lists the ones not hit")
+    ap.add_argument("--slow-pair", type=str, default=None,
+                    help="cases of diagnosis_cases.SLOW_PAIRS (creep+warming, creep+load-staircase, warming) "
+                         "drawn per seed instead of draw_case's")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
     ap.add_argument("--summarize", type=str, default=None,
@@ -277,7 +296,7 @@ def main(argv: list[str] | None = None) -> None:
         import diagnosis_regressions as DR
 
         only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler)
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
     C.print_document(doc, a.output)

@@ -631,6 +631,26 @@ def _merge(case: Case, builds: list[dict[str, Any]]) -> None:
     case.post = sorted(post, key=lambda st: order[st["stage"]])
 
 
+#: two slow effects at once (issue 62): creep with a channel that moves slowly too, the channel's
+#: form fixed, creep's form and everything else drawn per seed (:func:`draw_slow_pair`)
+SLOW_PAIRS: dict[str, tuple[list[str], dict[str, str]]] = {
+    "creep+warming": (["creep", "temperature"], {"temperature": "ramp"}),
+    "creep+load-staircase": (["creep", "load"], {"load": "steps"}),
+    "warming": (["temperature"], {"temperature": "ramp"}),  # the same drift without creep
+}
+
+
+def draw_slow_pair(seed: int, kind: str) -> Case:
+    """A case of :data:`SLOW_PAIRS` ``kind`` from its seed: the hidden effects fixed, their strengths,
+    the base, the program (creep: two holds or more), the split and the sensor drawn as
+    :func:`draw_case` draws them, from a stream of its own (seed n here is not case n there)."""
+    if kind not in SLOW_PAIRS:
+        raise ValueError(f"slow pair kind: {kind!r}, expected one of {', '.join(SLOW_PAIRS)}")
+    hidden, forms = SLOW_PAIRS[kind]
+    return _draw(np.random.default_rng([20240611, 62, sorted(SLOW_PAIRS).index(kind), seed]), seed,
+                 list(hidden), dict(forms))
+
+
 def draw_case(seed: int) -> Case:
     """A case from its seed alone (module docstring)."""
     rng = np.random.default_rng([20240611, seed])
@@ -642,6 +662,11 @@ def draw_case(seed: int) -> Case:
         hidden = [str(x) for x in rng.choice(pool, 2, replace=False)]
     else:
         hidden = [str(rng.choice(list(ALLOWED)))]
+    return _draw(rng, seed, hidden, {})
+
+
+def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: dict[str, str]) -> Case:
+    """The rest of a case once its hidden effects are chosen (forms in ``fixed_forms`` are not drawn)."""
     # the family: one that every hidden effect may be drawn with
     fams = [f for f in FAMILIES if all(h == "none" or f in ALLOWED[h] for h in hidden)]
     family = str(rng.choice(fams, p=None))
@@ -649,6 +674,8 @@ def draw_case(seed: int) -> Case:
     for h in hidden:
         if h == "hysteresis":
             forms[h] = family
+        elif h in fixed_forms:
+            forms[h] = fixed_forms[h]
         elif h != "none":
             forms[h] = str(rng.choice(list(FORMS[h])))
     unipolar = family in UNIPOLAR

@@ -95,6 +95,53 @@ def drift_after_refit(rows: ResidualRows, refit_e: np.ndarray, noise: float) -> 
             "drift_after_refit_um": float(np.mean(after))}
 
 
+#: the residual patterns of slow effects: creep's drift along holds and a recorded channel's trace
+SLOW_SIGNATURES = ("drift-on-holds", "channel")
+
+
+def slow_signatures(rows: ResidualRows, refit_e: np.ndarray, noise: float) -> dict[str, Any]:
+    """What a slow effect's refit leaves of the slow effects' signatures (issue 62), on the rows of
+    ``rows`` (the refit's residual ``refit_e`` on them, output unit; ``noise`` the sensor's floor):
+
+    * ``drift_left_um`` and ``drift_left_over_noise``: the mean absolute drift of the refit's
+      residual along the holds (:func:`hold_drifts`), and that over the noise's standard error on a
+      drift (a difference of two means of HOLD_END_ROWS samples): creep keeps drifting along every
+      hold whatever a channel does, so a channel term that leaves a drift beyond the noise leaves creep;
+    * ``channel_trace``: per recorded channel a, the residual's part that a and a*u explain (a
+      least-squares fit with a constant), as the fraction of its variance and that part's rms over
+      the noise floor: a channel effect follows its channel, creep does not.
+
+    Numbers to report beside the verdict; no check rests on them."""
+    drifts = np.abs(hold_drifts(rows, refit_e))
+    standard_error = float(noise) * math.sqrt(2.0 / HOLD_END_ROWS)
+    out: dict[str, Any] = {"holds": int(drifts.size)}
+    if drifts.size:
+        mean = float(np.mean(drifts))
+        out["drift_left_um"] = mean
+        out["drift_left_over_noise"] = mean / standard_error if standard_error > 0 else math.inf
+    trace: dict[str, dict[str, float]] = {}
+    var = float(np.var(refit_e)) if refit_e.size else 0.0
+    for channel, a in rows.aux.items():
+        share = explained(refit_e, [a, a * rows.u])
+        rms_part = math.sqrt(share * var)
+        trace[channel] = {"explained": share,
+                          "rms_over_noise": rms_part / float(noise) if noise > 0 else math.inf}
+    out["channel_trace"] = trace
+    return out
+
+
+def slow_sentence(effect: str, ev: dict[str, Any], unit: str = "") -> str:
+    """A clause for a slow effect's explanation when its refit leaves creep's signature beyond the
+    noise (CREEP_MIN_DRIFT_OVER_NOISE standard errors, the bar creep's own drift must clear); empty
+    otherwise."""
+    z = ev.get("drift_left_over_noise", 0.0)
+    if E.effect(effect).signature == "drift-on-holds" or not z >= T.CREEP_MIN_DRIFT_OVER_NOISE:
+        return ""
+    u = f" {unit}" if unit else ""
+    return (f"; with {effect} the residual still drifts along holds by {ev['drift_left_um']:.3g}{u} "
+            f"({z:.2g}x the noise's standard error on a drift): creep's signature, which {effect} does not take")
+
+
 def _fast_vs_slow(effect: str, rows: ResidualRows) -> tuple[str, dict[str, Any]]:
     e2 = rows.e**2
     rate = np.abs(rows.du)

@@ -24,7 +24,13 @@ import numpy as np
 
 from hilbench import effects as E
 from hilbench.diagnosis import thresholds as T
-from hilbench.diagnosis.evidence import EVIDENCE_CHECKS, explain
+from hilbench.diagnosis.evidence import (
+    EVIDENCE_CHECKS,
+    SLOW_SIGNATURES,
+    explain,
+    slow_sentence,
+    slow_signatures,
+)
 from hilbench.diagnosis.rate_calibration import RatePlan
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.rows import ResidualRows, residual_errors
@@ -420,11 +426,17 @@ def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, no
     elif plan is not None:
         checks["training_not_worse"] = new_t <= old_t * (1.0 + T.TRAINING_WORSE_TOLERANCE)
     sentence, evidence = explain(effect, rows)
+    signature = E.effect(effect).signature
     check = E.effect(effect).evidence_check
+    refit_e = residual_errors(new, "all") if check is not None or signature in SLOW_SIGNATURES else None
+    if signature in SLOW_SIGNATURES:
+        # what the refit leaves of creep's drift and of the channels' traces (issue 62): reported
+        evidence["slow_signatures"] = slow_signatures(rows, refit_e, float(noise))
+        sentence += slow_sentence(effect, evidence["slow_signatures"], base.output_unit)
     if check is not None:
         rule = EVIDENCE_CHECKS[check]
         if rule.after_refit is not None:
-            evidence.update(rule.after_refit(rows, residual_errors(new, "all"), float(noise)))
+            evidence.update(rule.after_refit(rows, refit_e, float(noise)))
         checks[rule.key] = rule.holds(evidence)
         if checks[rule.key] and not all(checks.values()):
             # the physical signature is there; say so, since the refit's verdict alone would hide it
