@@ -56,6 +56,7 @@ from hilbench.errors import UserError
 from hilbench.online.health import run_health
 from hilbench.online.inverse import PID, Compensator
 from hilbench.online.inverse_kernels import S_TARGET, comp_step, comp_update
+from hilbench.online.operating_range import FALL_TOLERANCE
 from hilbench.rig.safety import ramp
 from hilbench.sim import kernels as K
 
@@ -495,8 +496,10 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
         return ref, None
     # the reach is the model's static loop, known only as well as the model: a reference that leaves
     # it by no more than the model's validation rmse (the recorded extremes, read with the sensor's
-    # noise and the loop's overshoot) is run as asked, and says so; the rig may well reach it
-    tolerance = _model_rmse_um(comp.model)
+    # noise and the loop's overshoot) is run as asked, and says so; the rig may well reach it. Never
+    # by more than the share of the span a branch may fall (FALL_TOLERANCE): a poor model's error
+    # says nothing about where the rig turns
+    tolerance = min(_model_rmse_um(comp.model), FALL_TOLERANCE * (hi - lo))
     beyond = float(np.max(np.maximum(ref[outside] - hi, lo - ref[outside])))
     measured_there = measurable is None or (float(np.min(ref[finite])) >= float(measurable[0])
                                             and float(np.max(ref[finite])) <= float(measurable[1]))
