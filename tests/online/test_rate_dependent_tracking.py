@@ -18,24 +18,34 @@ from hilbench.recording.hdf5 import Recording
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
-@pytest.fixture(scope="module")
-def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, str, float]:
+
+def _swept_and_fitted(folder: Path, rig_name: str, spec: str, frequency_hz: float,
+                      cycles: int) -> tuple[Path, object, str, float]:
+    """The rig's own plan swept, ``spec`` fitted, and a sine over 80 % of the recorded output:
+    (rig, model, reference, the model's validation erms_pct)."""
     from hilbench.excitation.plan import expand_runs
     from hilbench.rig.config import load_rig
     from hilbench.rig.rig import Rig
     from hilbench.runners.sweep import run_plan
 
-    folder = tmp_path_factory.mktemp("rate-dependent")
-    rig = CONFIGS / "gmm-gu2016.toml"  # its own plan: the 002 amplitudes and rates
+    rig = CONFIGS / f"{rig_name}.toml"
     config = load_rig(rig)
-    recording = folder / "gu.h5"
+    recording = folder / "sweep.h5"
     with Rig(config) as opened:
         run_plan(opened, expand_runs(config.plan, file=config.path), recording)
-    result = fit(recording, "mpi+rate-dependence(form=damping)")
+    result = fit(recording, spec)
     y = np.concatenate([run.channel("output") for run in Recording(recording)])
     lo, hi = float(np.nanmin(y)), float(np.nanmax(y))
-    reference = f"sine:amplitude={0.4 * (hi - lo)},offset={0.5 * (hi + lo)},frequency_hz=1,phase_deg=-90,cycles=2"
+    reference = (f"sine:amplitude={0.4 * (hi - lo)},offset={0.5 * (hi + lo)},frequency_hz={frequency_hz},"
+                 f"phase_deg=-90,cycles={cycles}")
     return rig, result.model, reference, float(result.metrics["validation"]["erms_pct"])
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, str, float]:
+    # gmm-gu2016's own plan: the 002 amplitudes and rates
+    return _swept_and_fitted(tmp_path_factory.mktemp("rate-dependent"), "gmm-gu2016",
+                             "mpi+rate-dependence(form=damping)", 1.0, 2)
 
 
 def test_the_operating_range_of_a_rate_dependent_model_is_traced_slowly(fitted) -> None:
@@ -64,23 +74,9 @@ def test_feedforward_follows_a_sine_without_chatter_and_feedback_is_not_worse(fi
 def frequency_form(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object, str, float]:
     """003's rig and its frequency form (k(f), c(f) of eq. 13, the drive frequency counted between
     turning points), fitted on the rig's own 10-1500 Hz plan as ``diagnose --auto`` from pi1 returns it."""
-    from hilbench.excitation.plan import expand_runs
-    from hilbench.rig.config import load_rig
-    from hilbench.rig.rig import Rig
-    from hilbench.runners.sweep import run_plan
-
-    folder = tmp_path_factory.mktemp("rate-frequency")
-    rig = CONFIGS / "piezo-rate-pi.toml"
-    config = load_rig(rig)
-    recording = folder / "rate.h5"
-    with Rig(config) as opened:
-        run_plan(opened, expand_runs(config.plan, file=config.path), recording)
-    result = fit(recording, "pi1+rate-dependence(form=frequency)")
-    y = np.concatenate([run.channel("output") for run in Recording(recording)])
-    lo, hi = float(np.nanmin(y)), float(np.nanmax(y))
     # 10 Hz: the slowest drive the frequency form was fitted on (it holds f within training's span)
-    reference = f"sine:amplitude={0.4 * (hi - lo)},offset={0.5 * (hi + lo)},frequency_hz=10,phase_deg=-90,cycles=3"
-    return rig, result.model, reference, float(result.metrics["validation"]["erms_pct"])
+    return _swept_and_fitted(tmp_path_factory.mktemp("rate-frequency"), "piezo-rate-pi",
+                             "pi1+rate-dependence(form=frequency)", 10.0, 3)
 
 
 def test_feedforward_reverses_only_where_the_reference_does(frequency_form) -> None:
