@@ -788,23 +788,25 @@ def _contribution(case: Case, d: _Draw, mult: float, y_base: np.ndarray, base_ta
     return float(np.sqrt(np.mean(_projection_residual(y - y_base, y_base) ** 2)))
 
 
-def write_case(case: Case, folder: str | Path) -> tuple[list[Path], dict[str, Any]]:
-    """Simulate every run and write one HDF5 recording; (paths, diagnose keyword arguments)."""
+def write_case(case: Case, folder: str | Path, simulate_run: Any = None, prefix: str = "case",
+               experiment: str = "diagnosis-case") -> tuple[list[Path], dict[str, Any]]:
+    """Simulate every run and write one HDF5 recording; (paths, diagnose keyword arguments).
+    ``simulate_run(case, k) -> (u, y, aux)`` replaces :func:`simulate` (another generator's plant)."""
     from hilbench.recording.hdf5 import RecordingWriter
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"case-{case.seed:05d}.h5"
+    path = folder / f"{prefix}-{case.seed:05d}.h5"
     if path.exists():
         path.unlink()
     writer = RecordingWriter(path)
     fs = case.sample_rate_hz
     units = {"time": "s", "input": case.input_unit, "output": "um", "temperature": "degC", "load": "N"}
     for k, run in enumerate(case.runs):
-        u, y, aux = simulate(case, k)
+        u, y, aux = (simulate_run or simulate)(case, k)
         data = {"time": np.arange(u.size) / fs, "input": u, "output": _sensor(case, y, k), **aux}
         excitation = json.dumps([{kk: v for kk, v in p.items()} for p in run["pieces"]], default=float)
-        writer.write_run(run["label"], data, {c: units[c] for c in data}, experiment="diagnosis-case",
+        writer.write_run(run["label"], data, {c: units[c] for c in data}, experiment=experiment,
                          excitation=excitation, sample_rate_hz=fs)
     return [path], dict(case.split)
 

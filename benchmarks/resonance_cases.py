@@ -31,7 +31,6 @@ output-side dynamics stage.
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -167,22 +166,8 @@ def draw_resonance_case(seed: int, samples: int = 60_000) -> DC.Case:
 
 def write_resonance_case(case: DC.Case, folder: str | Path) -> tuple[list[Path], dict[str, Any]]:
     """Simulate every run and write one HDF5 recording; (paths, diagnose keyword arguments)."""
-    from hilbench.recording.hdf5 import RecordingWriter
-
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"resonance-{case.seed:05d}.h5"
-    if path.exists():
-        path.unlink()
-    writer = RecordingWriter(path)
-    fs = case.sample_rate_hz
-    for k, run in enumerate(case.runs):
-        u = DC.command(case, k)
-        data = {"time": np.arange(u.size) / fs, "input": u, "output": DC._sensor(case, _simulate(case, k), k)}
-        writer.write_run(run["label"], data, {"time": "s", "input": case.input_unit, "output": "um"},
-                         experiment="resonance-case", excitation=json.dumps(run["pieces"], default=float),
-                         sample_rate_hz=fs)
-    return [path], dict(case.split)
+    return DC.write_case(case, folder, simulate_run=lambda c, k: (DC.command(c, k), _simulate(c, k), {}),
+                         prefix="resonance", experiment="resonance-case")
 
 
 if __name__ == "__main__":  # a quick look at some draws
