@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["run_health", "health_line", "MAX_LIMITED_PCT", "MAX_SLEW_PCT", "ERROR_FACTOR", "ERROR_MARGIN_PCT", "DEGRADED_EXIT",
-           "model_validation_erms_pct"]
+           "model_validation_erms_pct", "model_validation_metric"]
 
 MAX_LIMITED_PCT = 1.0
 MAX_SLEW_PCT = 1.0
@@ -46,14 +46,20 @@ ERROR_MARGIN_PCT = 0.3
 DEGRADED_EXIT = 3
 
 
-def model_validation_erms_pct(model: Any) -> tuple[float | None, str]:
-    """The model's own erms_pct from its fit: (value, which split), or (None, "") when unknown."""
+def model_validation_metric(model: Any, key: str) -> tuple[float | None, str]:
+    """The model's own metric ``key`` from its fit, validation split first: (value, which split), or
+    (None, "") when unknown."""
     metrics = (getattr(model, "info", {}) or {}).get("metrics", {}) or {}
     for split in ("validation", "train"):
-        value = (metrics.get(split) or {}).get("erms_pct")
+        value = (metrics.get(split) or {}).get(key)
         if value is not None and np.isfinite(float(value)):
             return float(value), split
     return None, ""
+
+
+def model_validation_erms_pct(model: Any) -> tuple[float | None, str]:
+    """The model's own erms_pct from its fit: (value, which split), or (None, "") when unknown."""
+    return model_validation_metric(model, "erms_pct")
 
 
 def run_health(command: np.ndarray, applied: np.ndarray, command_range: tuple[float, float],

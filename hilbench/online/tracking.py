@@ -53,7 +53,7 @@ import numpy as np
 from numba import njit
 
 from hilbench.errors import UserError
-from hilbench.online.health import run_health
+from hilbench.online.health import model_validation_metric, run_health
 from hilbench.online.inverse import PID, Compensator
 from hilbench.online.inverse_kernels import S_TARGET, comp_step, comp_update
 from hilbench.online.operating_range import FALL_TOLERANCE
@@ -499,7 +499,7 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     # noise and the loop's overshoot) is run as asked, and says so; the rig may well reach it. Never
     # by more than the share of the span a branch may fall (FALL_TOLERANCE): a poor model's error
     # says nothing about where the rig turns
-    tolerance = min(_model_rmse_um(comp.model), FALL_TOLERANCE * (hi - lo))
+    tolerance = min(model_validation_metric(comp.model, "rmse")[0] or 0.0, FALL_TOLERANCE * (hi - lo))
     beyond = float(np.max(np.maximum(ref[outside] - hi, lo - ref[outside])))
     measured_there = measurable is None or (float(np.min(ref[finite])) >= float(measurable[0])
                                             and float(np.max(ref[finite])) <= float(measurable[1]))
@@ -528,17 +528,6 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     comp.notes.append(f"reference clipped to the reachable [{lo:.4g}, {hi:.4g}] um: {count} of {ref.size} samples "
                       f"(--allow-clip)")
     return clipped, info
-
-
-def _model_rmse_um(model: Any) -> float:
-    """The model's own validation rmse (um) from its fit (its training rmse without a validation
-    split), 0 when unknown."""
-    metrics = (getattr(model, "info", {}) or {}).get("metrics", {}) or {}
-    for split in ("validation", "train"):
-        value = (metrics.get(split) or {}).get("rmse")
-        if value is not None and math.isfinite(float(value)):
-            return float(value)
-    return 0.0
 
 
 def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
