@@ -104,7 +104,9 @@ def track(
         typer.echo(f"  reference clipped: {c['samples']} samples ({c['share_pct']:.3g} %) to the reachable "
                    f"[{c['reachable_um'][0]:.4g}, {c['reachable_um'][1]:.4g}] um")
     fb = result.compensator.get("feedback")
-    if fb and fb.get("margins"):
+    if fb and fb.get("margins") and fb["kp"] == 0.0 and fb["ki_per_s"] == 0.0 and fb["kd_s"] == 0.0:
+        typer.echo("  feedback (designed): left open, ki 0 (see the note)")
+    elif fb and fb.get("margins"):
         mg, lp = fb["margins"], fb["loop"]
         typer.echo(f"  feedback ({'designed' if fb['designed'] else 'given'}, um/um): kp {fb['kp']:.4g}, "
                    f"ki {fb['ki_per_s']:.4g} 1/s, kd {fb['kd_s']:.4g} s; gain margin {mg['gain_margin_db']:.3g} dB, "

@@ -31,8 +31,17 @@ and whose closed-loop poles lie inside the unit circle at every gain of the rang
 lag rounded up to whole samples), crossing over no higher than the training input's excited
 bandwidth (:func:`hilbench.diagnosis.input_motion.excited_bandwidth_hz`): above it the rig's
 dynamics were never seen, and a lag fitted at the drive rates says nothing of a resonance there.
-Where the model's training error is near the sensor's noise, the gain is lowered until the noise
-it feeds back adds at most a quarter of the model's error power (:func:`noise_budget_ki`).
+Below that ceiling the gain is weighed against the errors this model makes on this rig
+(:func:`predicted_error`): the training residual (measured - model, sensor noise included) is the
+error feed-forward leaves on the training drives, and with the loop closed the measured error is that
+residual through the loop's sensitivity S = 1 / (1 + L). An integrator removes the slow part of it and
+amplifies what lies near and above the crossover (and feeds the noise back). The design takes the
+largest gain whose predicted error, at the worst local gain of the range, is not above
+feed-forward's: a reference meets slow errors the training residual lacks (an offset of the starting
+state, a drift), and those the integrator removes the better the higher its gain, so the gain is not
+lowered further than the training error asks. Where every gain raises it (the residual is the sensor's
+noise, or lies near every crossover the margins allow), or the gain left has an integral time longer
+than the longest training run, the loop is left open (ki = 0) and says so.
 :func:`check` evaluates user gains on the same loop and raises
 :class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
 """
@@ -48,7 +57,7 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.online.pid import PID
 
-__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "noise_budget_ki",
+__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error",
            "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
 
 #: design targets over the whole local-gain range
@@ -63,8 +72,11 @@ GAIN_PERCENTILES = (5.0, 95.0)
 MAX_NEGATIVE_FRACTION = 0.25
 #: the local gain's lower end is at least this fraction of its median
 GAIN_FLOOR = 0.1
-#: the fed-back noise may add at most this fraction of the model's own error power
-NOISE_BUDGET = 0.25
+#: integral gains tried below the margins' ceiling (geometric, down to KI_SPAN below it)
+KI_CANDIDATES = 49
+KI_SPAN = 1e-4
+#: the training residual's power spectrum is kept on this many log-spaced frequency bins
+SPECTRUM_BINS = 240
 #: without training data the design crosses over at most at fs / this
 NO_DATA_BANDWIDTH_DIVISOR = 100.0
 #: gains evaluated across the range (geometric)
@@ -91,6 +103,10 @@ class IdentifiedLoop:
     noise_um: float | None = None
     bandwidth_hz: float | None = None
     residual_um: float | None = None  # rms of measured - model over the training runs
+    #: the training residual's mean-square power (um^2) per frequency bin: (centre frequencies in Hz,
+    #: power per bin); its sum is residual_um^2. None without training data
+    residual_spectrum: tuple[np.ndarray, np.ndarray] | None = None
+    longest_run_s: float | None = None  # the longest training run (s): the slowest error it resolves
 
     @property
     def has_dynamics(self) -> bool:
@@ -208,6 +224,17 @@ def _lag_and_gains(y_meas: np.ndarray, y_mod: np.ndarray) -> tuple[float, np.nda
     return lag, np.asarray(gains), noise
 
 
+def _binned_power(r: np.ndarray, run_fs: float, edges_hz: np.ndarray) -> np.ndarray:
+    """The sum of squares of ``r`` (um^2) split over the frequency bins ``edges_hz`` (Parseval:
+    the bins sum to sum(r^2)); the DC part goes to the first bin."""
+    n = r.size
+    spec = np.abs(np.fft.rfft(r)) ** 2 / n
+    spec[1:(n + 1) // 2] *= 2.0  # both halves of the two-sided spectrum, Nyquist and DC once
+    f = np.fft.rfftfreq(n, 1.0 / run_fs)
+    k = np.clip(np.searchsorted(edges_hz, f, side="right") - 1, 0, edges_hz.size - 2)
+    return np.bincount(k, weights=spec, minlength=edges_hz.size - 1)
+
+
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
@@ -223,6 +250,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     bands: list[float] = []
     squares: list[float] = []
     counts: list[int] = []
+    residuals: list[tuple[np.ndarray, float]] = []
     used = 0
     compiled: dict[float, Any] = {}
     for run in runs:
@@ -249,6 +277,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         noises.append(noise)
         bands.append(excited_bandwidth_hz(u, run_fs))
         r = (y - y_mod)[np.isfinite(y) & np.isfinite(y_mod)]
+        residuals.append((r, float(run_fs)))
         squares.append(float(np.sum(r * r)))
         counts.append(int(r.size))
         used += 1
@@ -276,9 +305,16 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     lo, hi = min(lo, MIN_GAIN_BAND[0]), max(hi, MIN_GAIN_BAND[1])
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
+    # the residual's spectrum over all runs, on one log grid from the longest run's resolution to the
+    # loop's Nyquist frequency (a faster training run's content above it is folded into the top bin)
+    longest = max(r.size / rfs for r, rfs in residuals)
+    edges = np.concatenate([[0.0], np.geomspace(0.5 / longest, 0.5 * fs, SPECTRUM_BINS)])
+    power = sum(_binned_power(r, rfs, edges) for r, rfs in residuals) / max(sum(counts), 1)
+    centres = np.concatenate([[0.0], np.sqrt(edges[1:-1] * edges[2:])])
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
                           noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
-                          residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)))
+                          residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
+                          residual_spectrum=(centres, np.asarray(power, float)), longest_run_s=float(longest))
 
 
 # ====================================================================================================
@@ -335,10 +371,32 @@ def _meets(m: dict[str, Any], loop: IdentifiedLoop) -> bool:
             and m["phase_margin_deg"] >= MIN_PHASE_MARGIN_DEG and m["crossover_hz"] <= cap)
 
 
+def predicted_error(pid: PID, loop: IdentifiedLoop) -> float | None:
+    """The rms error (um) the loop closed with ``pid`` is predicted to leave of the training residual,
+    at the worst local gain of the range: sqrt(sum over frequency of the residual's power times
+    |S|^2), S = 1 / (1 + L) the loop's sensitivity. With no controller it is the residual's rms
+    (feed-forward's own error). None without training data."""
+    if loop.residual_spectrum is None:
+        return None
+    f, p = loop.residual_spectrum
+    if pid.kp == 0.0 and pid.ki == 0.0 and pid.kd == 0.0:
+        return math.sqrt(float(np.sum(p)))
+    dc = f == 0.0  # an integrator removes a constant error (its response is infinite there)
+    w = 2.0 * np.pi * f[~dc]
+    base = _controller_response(pid, loop.fs, w) * loop.plant_response(w)
+    worst = 0.0
+    for g in loop.gains():
+        s2 = 1.0 / np.abs(1.0 + g * base) ** 2
+        worst = max(worst, float(np.sum(p[~dc] * s2)) + (0.0 if pid.ki > 0.0 else float(np.sum(p[dc]))))
+    return math.sqrt(worst)
+
+
 def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, dict[str, Any]]:
-    """The integral-only PID with the largest ki (1/s) meeting the margins over the gain range
-    (bisection in log ki: the loop gain scales with ki, the margins fall with it), lowered to
-    :func:`noise_budget_ki` where the model's error is near the sensor's noise."""
+    """The integral-only PID (ki in 1/s) meeting the margins over the gain range, lowered until its
+    predicted error (:func:`predicted_error`) is not above feed-forward's. The margins give a ceiling
+    (bisection in log ki: the loop gain scales with ki, the margins fall with it); below it,
+    KI_CANDIDATES gains down to KI_SPAN of the ceiling are tried from the top. Without training data
+    the ceiling is the gain; when every gain tried raises the error, ki is 0 (the loop left open)."""
     lo, hi = 1e-6 * loop.fs, 10.0 * loop.fs
     if not _meets(margins(PID(0.0, lo, 0.0, i_limit=i_limit), loop), loop):
         raise InstabilityError(f"no integral gain down to {lo:.3g} 1/s keeps {MIN_GAIN_MARGIN_DB:g} dB and "
@@ -352,34 +410,34 @@ def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, 
             hi = mid
         if hi / lo < 1.01:
             break
-    ki = lo
-    m_max = margins(PID(0.0, ki, 0.0), loop)
-    budget = noise_budget_ki(loop)
-    if budget is not None and budget < ki:
-        ki = max(budget, 1e-6 * loop.fs)
-    pid = PID(0.0, ki, 0.0, i_limit=i_limit, reversal_guard=True)
+    ceiling = ki = lo
+    m_max = margins(PID(0.0, ceiling, 0.0), loop)
+    ff_error = predicted_error(PID(0.0, 0.0, 0.0), loop)
+    best = None
+    if ff_error is not None:
+        # the largest gain not predicted to raise the training error: what the training drives leave
+        # near the crossover sets the ceiling; below it the integrator removes whatever slow error a
+        # reference meets (an offset of the starting state, a drift) that the training residual lacks
+        for k in np.geomspace(ceiling, ceiling * KI_SPAN, KI_CANDIDATES):
+            best, ki = predicted_error(PID(0.0, float(k), 0.0), loop), float(k)
+            if best <= ff_error:
+                break
+        else:
+            best, ki = ff_error, 0.0
+        if loop.longest_run_s and 0.0 < ki * loop.longest_run_s < 1.0:
+            # an integral time longer than the longest training run: it removes nothing within a run
+            # of that length, and the prediction cannot resolve what it does over a longer one
+            best, ki = ff_error, 0.0
+    pid = PID(0.0, float(ki), 0.0, i_limit=i_limit, reversal_guard=True)
     m = margins(pid, loop)
-    m["ki_max_per_s"] = float(lo)
+    m["ki_max_per_s"] = float(ceiling)
     m["crossover_max_hz"] = m_max["crossover_hz"]
-    m["noise_limited"] = bool(ki < lo)
+    m["error_limited"] = bool(ki < ceiling)
+    m["open"] = bool(ki == 0.0)
+    if ff_error is not None and best is not None:
+        m["predicted_error_um"] = float(best)
+        m["feedforward_error_um"] = float(ff_error)
     return pid, m
-
-
-def noise_budget_ki(loop: IdentifiedLoop) -> float | None:
-    """The integral gain (1/s) whose fed-back sensor noise adds at most NOISE_BUDGET of the model's
-    own error power to the measured error (None without training data).
-
-    An integrator of k = g ki / fs per sample, one sample late, passes white noise of variance
-    sigma^2 to the measured error with variance sigma^2 (1 + k / (2 - k)); what it can remove is
-    the model's error, E^2 = (training rms error)^2 - sigma^2. Where the model is already at the
-    sensor's noise floor, E is small and so is the gain: feedback has nothing to remove there and
-    would only add noise."""
-    if loop.residual_um is None or loop.noise_um is None or not loop.noise_um > 0.0:
-        return None
-    e2 = max(loop.residual_um ** 2 - loop.noise_um ** 2, 0.0)
-    budget = NOISE_BUDGET * e2
-    k = 2.0 * budget / (loop.noise_um ** 2 + budget)
-    return k * loop.fs / loop.gain_range[1]
 
 
 def check(pid: PID, loop: IdentifiedLoop) -> dict[str, Any]:

@@ -525,11 +525,18 @@ class Compensator:
             f"kd {self.pid.kd:.4g} s (um/um); gain margin {m['gain_margin_db']:.3g} dB, phase margin "
             f"{m['phase_margin_deg']:.3g} deg, crossover {m['crossover_hz']:.3g} Hz over local gains "
             f"{lo:.3g}-{hi:.3g}, unmodelled lag {loop.lag_s * 1e3:.3g} ms ({loop.source})")
-        if m.get("noise_limited"):
+        if m.get("feedforward_error_um") and not m.get("open"):
+            ratio = m["predicted_error_um"] / m["feedforward_error_um"]
             self.notes.append(
-                f"feedback gain lowered from ki {m['ki_max_per_s']:.4g} 1/s: the model's training error "
-                f"({loop.residual_um:.3g} um rms) is near the sensor's noise ({loop.noise_um:.3g} um): "
-                "more gain would feed back more noise than there is model error to remove")
+                f"feedback gain chosen for this model's training error ({m['feedforward_error_um']:.3g} um rms, sensor "
+                f"noise included): predicted {m['predicted_error_um']:.3g} um with the loop closed at the worst local "
+                f"gain ({ratio:.2f}x)" + (f"; the margins allowed ki up to {m['ki_max_per_s']:.4g} 1/s, more would "
+                                           "raise the error near the crossover" if m["error_limited"] else ""))
+        if m.get("open"):
+            self.notes.append(
+                f"feedback left open (ki = 0): every integral gain up to {m['ki_max_per_s']:.4g} 1/s is predicted to raise "
+                f"this model's error on this rig ({m['feedforward_error_um']:.3g} um rms on its training runs: the "
+                "sensor's noise, or error near the crossover the margins allow); the run is feed-forward")
 
     def _range_notes(self, kind: str) -> None:
         r, u = self.range, self.unit
@@ -735,7 +742,9 @@ class Compensator:
                                "units": "output domain: um of error in, um added to the reference out",
                                "designed": bool(self.checks.get("closed_loop", {}).get("designed", False)),
                                "margins": {k: self.margins[k] for k in ("gain_margin_db", "phase_margin_deg",
-                                                                        "crossover_hz", "max_pole_radius")}
+                                                                        "crossover_hz", "max_pole_radius",
+                                                                        "predicted_error_um", "feedforward_error_um")
+                                           if k in self.margins}
                                if self.margins else None,
                                "loop": self.loop.describe() if self.loop is not None else None}
         if self.oiir is not None:
