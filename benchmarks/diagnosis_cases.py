@@ -737,20 +737,26 @@ def draw_case(seed: int, suite: str = "classic") -> Case:
     seed n."""
     if suite not in SUITES:
         raise ValueError(f"suite: {suite!r}, expected one of {', '.join(SUITES)}")
-    widened = suite == "widened"
-    rng = np.random.default_rng([20240611, 62, 4, seed] if widened else [20240611, seed])
+    rng = case_rng(seed, suite)
+    return _draw(rng, seed, draw_hidden(rng, suite), {}, suite)
+
+
+def case_rng(seed: int, suite: str = "classic") -> np.random.Generator:
+    """The stream a case of ``suite`` is drawn from (the widened suite's is its own)."""
+    return np.random.default_rng([20240611, 62, 4, seed] if suite == "widened" else [20240611, seed])
+
+
+def draw_hidden(rng: np.random.Generator, suite: str = "classic") -> list[str]:
+    """The hidden effects, the first draws of a case: ``['none']``, one effect or two."""
     u = rng.random()
     if u < P_CLEAN:
-        hidden = ["none"]
-    elif u < P_CLEAN + P_TWO:
-        if widened and rng.random() < P_SLOW_PAIR_WIDENED:
-            hidden = ["creep", str(rng.choice(["temperature", "load"]))]
-        else:
-            pool = [e for e in ALLOWED if e != "hysteresis"]
-            hidden = [str(x) for x in rng.choice(pool, 2, replace=False)]
-    else:
-        hidden = [str(rng.choice(list(ALLOWED)))]
-    return _draw(rng, seed, hidden, {}, suite)
+        return ["none"]
+    if u < P_CLEAN + P_TWO:
+        if suite == "widened" and rng.random() < P_SLOW_PAIR_WIDENED:
+            return ["creep", str(rng.choice(["temperature", "load"]))]
+        pool = [e for e in ALLOWED if e != "hysteresis"]
+        return [str(x) for x in rng.choice(pool, 2, replace=False)]
+    return [str(rng.choice(list(ALLOWED)))]
 
 
 def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: dict[str, str],
