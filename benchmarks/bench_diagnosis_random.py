@@ -7,6 +7,7 @@ it was never tuned to?
     python benchmarks/bench_diagnosis_random.py --only 3 17 42        # these case seeds
     python benchmarks/bench_diagnosis_random.py --regressions --workers 2   # every seeded regression
     python benchmarks/bench_diagnosis_random.py --slow-pair creep+warming --only 0 1 2 --auto  # issue 62
+    python benchmarks/bench_diagnosis_random.py --suite widened --seed 9700 --cases 300 --auto  # fresh seeds
 
 Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
 --cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
@@ -29,7 +30,20 @@ Prints one JSON document on stdout (progress on stderr):
   an effect is hidden, share of those with a reduction of 3x or more; per effect and per form;
 * ``targets`` (issue): ranked first >= 95 %, clean with nothing flagged >= 95 %, median --auto
   reduction >= 3x; ``meets_target`` flags;
+* issue 62, item 4 (:func:`seed_class_report`): every case's ``seed_class``: seeds 9700-9999
+  (:data:`FRESH_SEEDS`) are kept **fresh** (nobody develops the diagnosis on them; judge on them
+  only), every other seed is **development**; ``seed_classes`` (the rates of each class apart);
+  ``confusion_per_effect`` (rows: the hidden effect of a single case, ``none`` for a clean one, and
+  ``X (pair)`` for each member X of a two-effect case; columns: the significant candidate ranked first,
+  ``nothing`` when none) and ``confusion_auto_added`` (the same rows; columns: every effect ``--auto``
+  added, a pair's members apart); ``acceptance_fresh`` (fresh seeds only, a case that raised counts
+  as a miss): single-effect ranked first >= 95 %, two-effect both added by ``--auto`` >= 90 %, clean
+  nothing flagged >= 95 %. The matrices are printed as text tables on stderr;
 * runtime.
+
+``--suite widened`` draws ``diagnosis_cases.draw_case(seed, "widened")`` (Preisach and Bouc-Wen
+bases, arctan and exp output knees, creep with a slow channel); the default ``classic`` suite draws
+what the pinned seeds of the tests and regressions draw.
 
 Nothing is tuned per case: the generator draws from physics and measurement practice, the diagnosis
 runs with its defaults.
@@ -55,17 +69,25 @@ TARGET_FIRST = 0.95
 TARGET_CLEAN = 0.95
 TARGET_REDUCTION = 3.0
 MAX_WORKERS = 2
+#: seeds nobody develops the diagnosis on (issue 62: judge on fresh seeds only); the rest is development
+FRESH_SEEDS = range(9700, 10000)
+TARGET_TWO_BOTH_ADDED = 0.90
 
 
-def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None) -> dict[str, Any]:
-    """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``);
-    never raises (an exception is the case's result)."""
+def seed_class(seed: int) -> str:
+    return "fresh" if seed in FRESH_SEEDS else "development"
+
+
+def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None,
+             suite: str = "classic") -> dict[str, Any]:
+    """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``;
+    else of ``suite``); never raises (an exception is the case's result)."""
     import diagnosis_cases as DC
 
     t0 = time.perf_counter()
-    out: dict[str, Any] = {"seed": seed}
+    out: dict[str, Any] = {"seed": seed, "seed_class": seed_class(seed), "suite": suite}
     try:
-        case = DC.draw_case(seed) if slow_pair is None else DC.draw_slow_pair(seed, slow_pair)
+        case = DC.draw_case(seed, suite) if slow_pair is None else DC.draw_slow_pair(seed, slow_pair)
         if slow_pair is not None:
             out["slow_pair"] = slow_pair
         out.update(kind=case.kind, hidden=case.hidden, forms=case.forms, family=case.family, spec=case.spec,
@@ -118,7 +140,7 @@ def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None) -
 _JSONL: str | None = None
 
 
-def run_case_of(args: tuple[int, bool, str, str | None]) -> dict[str, Any]:
+def run_case_of(args: tuple[int, bool, str, str | None, str]) -> dict[str, Any]:
     """One job of :func:`run` (a tuple: what a Dask task carries)."""
     return run_case(*args)
 
@@ -230,13 +252,104 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
     }
 
 
+def _pair_rows(r: dict[str, Any]) -> list[str]:
+    """The rows of :func:`seed_class_report`'s matrices a case counts in."""
+    if r.get("kind") == "clean":
+        return ["none"]
+    if r.get("kind") == "two":
+        return [f"{h} (pair)" for h in r["hidden"]]
+    return [r["hidden"][0]]
+
+
+def _rate(xs: list[bool]) -> float | None:
+    return sum(xs) / len(xs) if xs else None
+
+
+def seed_class_report(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
+    """Issue 62, item 4: the confusion matrices per effect, the classes of seeds apart, and the
+    acceptance judged on fresh seeds only (module docstring)."""
+    confusion: dict[str, Counter] = defaultdict(Counter)
+    confusion_auto: dict[str, Counter] = defaultdict(Counter)
+    for r in results:
+        if "error" in r:
+            continue
+        for row in _pair_rows(r):
+            confusion[row][_first_flag(r)] += 1
+            if "auto_added" in r:
+                parts = sorted({p for x in r["auto_added"] for p in x.split("+")}) or ["nothing"]
+                for p in parts:
+                    confusion_auto[row][p] += 1
+    classes = {}
+    for cls in ("fresh", "development"):
+        rs = [r for r in results if r.get("seed_class", seed_class(r["seed"])) == cls]
+        if rs:
+            classes[cls] = {"n": len(rs), "seeds": [min(r["seed"] for r in rs), max(r["seed"] for r in rs)],
+                            "rates": summarize(rs, auto)["rates"]}
+    fresh = [r for r in results if r.get("seed_class", seed_class(r["seed"])) == "fresh"]
+    single = [_hit(r) for r in fresh if r.get("kind") == "single"]
+    two = [("error" not in r) and _added_all(r) for r in fresh if r.get("kind") == "two" and (
+        "auto_added" in r or "error" in r)]
+    clean = [_hit(r) for r in fresh if r.get("kind") == "clean"]
+    acceptance = {
+        "single_ranked_first": {"rate": _rate(single), "n": len(single), "target": TARGET_FIRST},
+        "two_effect_both_added_by_auto": {"rate": _rate(two), "n": len(two), "target": TARGET_TWO_BOTH_ADDED},
+        "clean_nothing_flagged": {"rate": _rate(clean), "n": len(clean), "target": TARGET_CLEAN},
+    }
+    for v in acceptance.values():
+        v["met"] = v["rate"] is not None and v["rate"] >= v["target"]
+    # a case whose generator raised has no kind to be judged under: counted apart
+    acceptance["generator_errors"] = {"n": sum(1 for r in fresh if "kind" not in r)}
+    return {
+        "confusion_per_effect": {k: dict(v) for k, v in sorted(confusion.items())},
+        "confusion_auto_added": {k: dict(v) for k, v in sorted(confusion_auto.items())} if auto else None,
+        "seed_classes": classes,
+        "acceptance_fresh": acceptance if fresh else None,
+    }
+
+
+def confusion_table(matrix: dict[str, dict[str, int]], corner: str = "hidden / first") -> str:
+    """A confusion matrix as a small text table (rows as given, columns sorted, ``nothing`` last)."""
+    cols = sorted({c for row in matrix.values() for c in row}, key=lambda c: (c == "nothing", c))
+    w0 = max([len(corner), *map(len, matrix)])
+    widths = [max(len(c), 3) for c in cols]
+    lines = [" ".join([corner.ljust(w0), *(c.rjust(w) for c, w in zip(cols, widths))])]
+    for row, counts in matrix.items():
+        cells = [(str(counts[c]) if c in counts else ".").rjust(w) for c, w in zip(cols, widths)]
+        lines.append(" ".join([row.ljust(w0), *cells]))
+    return "\n".join(lines)
+
+
+def note_tables(report: dict[str, Any]) -> None:
+    """The matrices and the fresh acceptance on stderr (stdout carries the JSON)."""
+    C.note("confusion, ranked first (rows: hidden; 'X (pair)': X in a two-effect case):")
+    C.note(confusion_table(report["confusion_per_effect"]))
+    if report.get("confusion_auto_added"):
+        C.note("confusion, added by --auto:")
+        C.note(confusion_table(report["confusion_auto_added"], "hidden / added"))
+    for cls, v in report["seed_classes"].items():
+        C.note(f"{cls} seeds {v['seeds'][0]}-{v['seeds'][1]} ({v['n']} cases): "
+               + ", ".join(f"{k} {x:.3f}" for k, x in v["rates"].items() if isinstance(x, float)))
+    if report.get("acceptance_fresh"):
+        parts = []
+        for k, v in report["acceptance_fresh"].items():
+            if "rate" not in v:
+                parts.append(f"{k} {v['n']}")
+                continue
+            rate = "-" if v["rate"] is None else f"{v['rate']:.3f}"
+            parts.append(f"{k} {rate} (n {v['n']}, target {v['target']}{', met' if v['met'] else ''})")
+        C.note("acceptance on fresh seeds: " + ", ".join(parts))
+    else:
+        C.note("no fresh seeds (9700-9999) in this run: nothing judged")
+
+
 def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
-        only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None) -> dict[str, Any]:
+        only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None,
+        suite: str = "classic") -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
     n_auto = len(seeds) if auto_cases is None else min(auto_cases, len(seeds))
-    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair) for i, s in enumerate(seeds)]
+    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair, suite) for i, s in enumerate(seeds)]
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
@@ -249,8 +362,9 @@ def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, a
     out: dict[str, Any] = {
         "environment": C.environment(),
         "settings": {"cases": len(seeds), "first_seed": seeds[0] if seeds else None, "workers": workers,
-                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair},
+                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair, "suite": suite},
         **summarize(results, auto),
+        **seed_class_report(results, auto),
         "runtime": {"wall_s": wall, "per_case_median_s": statistics.median([r["seconds"] for r in results if "seconds" in r])
                     if any("seconds" in r for r in results) else None,
                     "diagnose_median_s": statistics.median([r["diagnose_s"] for r in results if "diagnose_s" in r])
@@ -279,6 +393,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--slow-pair", type=str, default=None,
                     help="cases of diagnosis_cases.SLOW_PAIRS (creep+warming, creep+load-staircase, warming) "
                          "drawn per seed instead of draw_case's")
+    ap.add_argument("--suite", choices=("classic", "widened"), default="classic",
+                    help="diagnosis_cases suite: classic (the pinned seeds' draws) or widened (issue 62: Preisach "
+                         "and Bouc-Wen bases, more soft knees, creep with a slow channel)")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
     ap.add_argument("--summarize", type=str, default=None,
@@ -289,14 +406,18 @@ def main(argv: list[str] | None = None) -> None:
     if a.summarize:
         rows = [json.loads(x) for x in Path(a.summarize).read_text(encoding="utf-8").splitlines() if x.strip()]
         rows.sort(key=lambda r: r["seed"])
-        print(json.dumps({**summarize(rows, any("auto_added" in r for r in rows)), "cases": rows}, indent=2, default=float))
+        auto_rows = any("auto_added" in r for r in rows)
+        report = seed_class_report(rows, auto_rows)
+        note_tables(report)
+        print(json.dumps({**summarize(rows, auto_rows), **report, "cases": rows}, indent=2, default=float))
         return
     only = a.only
     if a.regressions:
         import diagnosis_regressions as DR
 
         only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair)
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair, a.suite)
+    note_tables(doc)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
     C.print_document(doc, a.output)

@@ -188,8 +188,8 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
     def kernel_block() -> None:
         K.plant_block(
             u_block, np.zeros(0), np.zeros(0), noise, plant.S, plant.in_exp, plant.in_w, plant.op_r, plant.op_w,
-            plant.op_eta, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp, plant.rate_cp, plant.rate_mp,
-            plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state, plant.creep_state,
+            plant.op_eta, plant.relay_a, plant.relay_b, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp,
+            plant.rate_cp, plant.rate_mp, plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state, plant.creep_state,
             plant.dyn_state, plant.delay_buf, plant.tp_state, *bufs,
         )
 
@@ -288,8 +288,8 @@ def _run(samples: int, peer_samples: int, step_samples: int, repeats: int, workd
             u1[0] = x
             K.plant_block(
                 u1, e0, e0, zero1, plant.S, plant.in_exp, plant.in_w, plant.op_r, plant.op_w,
-                plant.op_eta, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp, plant.rate_cp, plant.rate_mp,
-                plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state,
+                plant.op_eta, plant.relay_a, plant.relay_b, plant.asym, plant.dz_r, plant.dz_g, plant.rate_kp,
+                plant.rate_cp, plant.rate_mp, plant.creep_g, plant.creep_a, plant.dyn_b, plant.dyn_a, plant.X, plant.op_state,
                 plant.creep_state, plant.dyn_state, plant.delay_buf, plant.tp_state, *one,
             )
 

@@ -44,6 +44,14 @@ stage is done after the plant, the plant's creep and dynamics are moved after it
 discrete filters), so the physical order of the chain is kept. The sensor (noise, quantisation)
 is always applied last, by the generator.
 
+**Two suites.** ``draw_case(seed)`` is the classic suite, whose seeds the tests and
+``diagnosis_regressions.py`` pin: its draws never change. ``draw_case(seed, "widened")`` (issue 62,
+item 4) draws from a stream of its own, with two more bases, ``preisach`` -> ``pi`` and
+``bouc-wen`` -> ``bouc-wen`` (:func:`_widened_base_table`; decision 0109), two more soft knees of the
+output saturation (``output-arctan``, ``output-exp``: :data:`FORMS_WIDENED`), and creep paired with
+a slow channel (temperature or load, every form) in :data:`P_SLOW_PAIR_WIDENED` of its two-effect
+cases. Multi-tone and band-limited noise segments are in both suites' programs.
+
 Clean cases (``hidden = ("none",)``) have the base only; about a quarter of all cases (clean ones
 included) record a lab temperature channel that drifts but that the actuator does not depend on.
 """
@@ -108,6 +116,21 @@ FORMS: dict[str, dict[str, str]] = {
     },
 }
 
+#: the widened suite (issue 62, item 4): two more bases, two more soft knees of the output
+FORMS_WIDENED: dict[str, dict[str, str]] = {
+    **FORMS,
+    "hysteresis": {
+        **FORMS["hysteresis"],
+        "preisach": "[plant.hysteresis] model = 'preisach' (relay grid, Gaussian density); start spec 'linear'",
+        "bouc-wen": "[plant.hysteresis] model = 'bouc-wen' (n = 1, piezo form y = k u - z); start spec 'linear'",
+    },
+    "saturation": {
+        **FORMS["saturation"],
+        "output-arctan": "generator: y = L (2/pi) arctan(pi y / (2 L)) on the plant's output; creep/dynamics moved after it",
+        "output-exp": "generator: y = L sgn(y) (1 - exp(-|y| / L)) on the plant's output; creep/dynamics moved after it",
+    },
+}
+
 #: the effects a case may hide, with the plant families they are drawn with (a base that already
 #: contains an effect never hides it: pmpi has the cubic polynomial, the Duhem shape functions
 #: shape the anhysteretic curve, so asymmetry and saturation are not hidden under them)
@@ -123,9 +146,17 @@ ALLOWED = {
     "temperature": FAMILIES,
     "load": FAMILIES,
 }
+FAMILIES_WIDENED = (*FAMILIES, "preisach", "bouc-wen")
+#: a Preisach base saturates by itself once the drive sweeps its relays, and a hidden saturation on it
+#: is the confusable case of issue 62; Bouc-Wen is centrally symmetric like the play operator
+ALLOWED_WIDENED = {e: (*fams, "preisach", "bouc-wen") if e != "hysteresis" else FAMILIES_WIDENED
+                   for e, fams in ALLOWED.items()}
+#: widened: a two-effect case is creep with a slow channel this often (every pairing drawn)
+P_SLOW_PAIR_WIDENED = 0.4
+SUITES = ("classic", "widened")
 UNIPOLAR = {"one-sided-play", "m-play"}
 DUHEM_SPEC = {"gompertz": "duhem-g", "tanh": "duhem-m", "dead-zone": "duhem-d", "none": "duhem-d"}
-BASE_SPEC = {"play": "pi", "one-sided-play": "pi1", "m-play": "pmpi"}
+BASE_SPEC = {"play": "pi", "one-sided-play": "pi1", "m-play": "pmpi", "preisach": "pi", "bouc-wen": "bouc-wen"}
 
 #: shares of the case kinds
 P_CLEAN = 0.15
@@ -157,6 +188,7 @@ class Case:
     snr: dict[str, float] = field(default_factory=dict)  # hidden effect -> contribution rms / noise
     strength: dict[str, dict[str, Any]] = field(default_factory=dict)  # hidden effect -> parameters
     notes: list[str] = field(default_factory=list)
+    suite: str = "classic"  # SUITES: which draw this is
 
     @property
     def kind(self) -> str:
@@ -182,6 +214,16 @@ def knee(x: np.ndarray, level: float, p: float) -> np.ndarray:
     """Odd saturating knee: ``level * s(x / level)``, s(z) = z / (1 + |z|^p)^(1/p); p large = sharp."""
     z = x / level
     return level * z / (1.0 + np.abs(z) ** p) ** (1.0 / p)
+
+
+def soft_knee(x: np.ndarray, level: float, shape: str) -> np.ndarray:
+    """The widened suite's other odd knees, unit slope at 0 and asymptote ``level``: ``arctan``
+    L (2/pi) arctan(pi x / (2 L)) and ``exp`` L sgn(x) (1 - exp(-|x| / L))."""
+    if shape == "arctan":
+        return level * (2.0 / math.pi) * np.arctan(0.5 * math.pi * x / level)
+    if shape == "exp":
+        return level * np.sign(x) * -np.expm1(-np.abs(x) / level)
+    raise ValueError(shape)
 
 
 def _slew(u: np.ndarray, max_step: float) -> np.ndarray:
@@ -365,7 +407,8 @@ def _apply_post(y: np.ndarray, post: list[dict[str, Any]], fs: float) -> np.ndar
 
     for st in post:
         if st["stage"] == "output-knee":
-            y = knee(y, st["level"], st["p"])
+            shape = st.get("shape", "algebraic")
+            y = knee(y, st["level"], st["p"]) if shape == "algebraic" else soft_knee(y, st["level"], shape)
         elif st["stage"] == "kv-creep":
             y = _kv_creep(y, st["gains"], st["time_constants_s"], fs)
         elif st["stage"] == "log-creep":
@@ -433,6 +476,8 @@ def _base_table(rng: np.random.Generator, family: str, u_max: float) -> tuple[di
             t.update(k1=j(2.979), k2=j(0.778), alpha=j(0.575 * 6.0), beta=j(1.859 * 6.0), n_dead_zone=6,
                      mu=[j(0.452 / 6.0), j(2.378), j(0.098), j(0.587 / 6.0), j(3.997), j(0.214)])
         return t, DUHEM_SPEC[shape], f"duhem shape {shape}"
+    if family in ("preisach", "bouc-wen"):
+        return _widened_base_table(rng, family, u_max)
     n = int(rng.integers(3, 9))
     top = 0.9 if family != "play" else 0.85
     r = np.sort(rng.uniform(0.03, top, n))
@@ -442,6 +487,34 @@ def _base_table(rng: np.random.Generator, family: str, u_max: float) -> tuple[di
     if family == "m-play":
         t["eta"] = [float(x) for x in rng.uniform(-0.3, 1.0, n)]
     return t, BASE_SPEC[family], f"{n} operators"
+
+
+def _widened_base_table(rng: np.random.Generator, family: str, u_max: float) -> tuple[dict[str, Any], str, str]:
+    """Preisach and Bouc-Wen bases of the widened suite (bipolar drive, normalised by u_max).
+
+    Preisach: relays over +-1.1 of the drive's range, coercive fields 0.1-0.4 (a loop of a fifth to
+    four fifths of the range's half-width), an interaction spread of 0.8-3 (wide: the major loop is
+    PI-like inside the drive, with the soft flattening a finite spread gives at its ends) and a
+    reversible part; start spec ``pi``, the Preisach model whose density is constant along the
+    interaction axis, what a bench engineer starts a Preisach-like actuator with (decision 0109).
+    Bouc-Wen: the piezo form y = k u - z (Low & Guo 1995: the output lags), n = 1 (the fit base's
+    default), A = 1, beta 1.5-8, gamma/beta -0.5..0.9, k 1-1.5x the steepest slope of z so that y
+    rises with u; start spec ``bouc-wen``.
+    """
+    if family == "preisach":
+        t: dict[str, Any] = {"model": "preisach", "input_scale": u_max, "levels": int(rng.integers(40, 61)),
+                             "switching_range": [-1.1, 1.1], "coercive_mean": rng.uniform(0.1, 0.4),
+                             "coercive_std": rng.uniform(0.05, 0.2), "interaction_std": _logu(rng, 0.8, 3.0),
+                             "scatter_seed": int(rng.integers(1, 2**31 - 1)),
+                             "linear_gain": rng.uniform(0.2, 1.0)}
+        return t, BASE_SPEC[family], f"preisach {t['levels']} levels, interaction spread {t['interaction_std']:.2f}"
+    beta = _logu(rng, 1.5, 8.0)
+    gamma = beta * rng.uniform(-0.5, 0.9)
+    z_max = 1.0 / (beta + gamma)
+    slope = 1.0 + (beta + abs(gamma)) * z_max  # the largest dz/du (A = 1, n = 1) right after a reversal
+    t = {"model": "bouc-wen", "input_scale": u_max, "a": 1.0, "beta": beta, "gamma": gamma, "n": 1.0,
+         "z_weight": -1.0, "linear_gain": slope * rng.uniform(1.0, 1.5)}
+    return t, BASE_SPEC[family], f"bouc-wen beta {beta:.2f} gamma {gamma:.2f}"
 
 
 def _projection_residual(c: np.ndarray, y_base: np.ndarray) -> np.ndarray:
@@ -470,8 +543,10 @@ class _Draw:
                 self.p = {"ell": r.uniform(0.55, 1.1), "p": r.uniform(1.5, 6.0)}
             elif form == "output-tanh":
                 self.p = {"ell": r.uniform(0.6, 1.3)}
-            else:
+            elif form == "output-knee":
                 self.p = {"ell": r.uniform(0.55, 1.1), "p": r.uniform(1.5, 8.0)}
+            else:  # output-arctan, output-exp (widened suite)
+                self.p = {"ell": r.uniform(0.55, 1.1)}
         elif effect == "rate-dependence":
             if form == "velocity-damping":
                 self.p = {"s": _logu(r, 0.03, 0.25), "m": r.uniform(0.6, 1.6)}
@@ -551,8 +626,11 @@ class _Draw:
                 out["pre"].append({"stage": "input-knee", "level": ell * c["u_max"], "p": p["p"]})
             elif f == "output-tanh":
                 out["tables"]["saturation"] = {"level": ell * h_max}
-            else:
+            elif f == "output-knee":
                 out["post"].append({"stage": "output-knee", "level": ell * c["y_max_um"], "p": p["p"]})
+            else:
+                out["post"].append({"stage": "output-knee", "shape": f.removeprefix("output-"),
+                                    "level": ell * c["y_max_um"]})
             out["params"] = {"level_over_max": ell, **({"p": p["p"]} if "p" in p else {})}
         elif e == "rate-dependence":
             if f == "velocity-damping":
@@ -651,24 +729,43 @@ def draw_slow_pair(seed: int, kind: str) -> Case:
                  list(hidden), dict(forms))
 
 
-def draw_case(seed: int) -> Case:
-    """A case from its seed alone (module docstring)."""
-    rng = np.random.default_rng([20240611, seed])
+def draw_case(seed: int, suite: str = "classic") -> Case:
+    """A case from its seed alone (module docstring); ``suite`` 'widened' draws from
+    :data:`FAMILIES_WIDENED` and :data:`FORMS_WIDENED`, with creep paired with a slow channel in
+    :data:`P_SLOW_PAIR_WIDENED` of its two-effect cases, from a stream of its own: the classic draws
+    (the seeds the tests and regressions pin) stay what they were, and widened seed n is not classic
+    seed n."""
+    if suite not in SUITES:
+        raise ValueError(f"suite: {suite!r}, expected one of {', '.join(SUITES)}")
+    rng = case_rng(seed, suite)
+    return _draw(rng, seed, draw_hidden(rng, suite), {}, suite)
+
+
+def case_rng(seed: int, suite: str = "classic") -> np.random.Generator:
+    """The stream a case of ``suite`` is drawn from (the widened suite's is its own)."""
+    return np.random.default_rng([20240611, 62, 4, seed] if suite == "widened" else [20240611, seed])
+
+
+def draw_hidden(rng: np.random.Generator, suite: str = "classic") -> list[str]:
+    """The hidden effects, the first draws of a case: ``['none']``, one effect or two."""
     u = rng.random()
     if u < P_CLEAN:
-        hidden = ["none"]
-    elif u < P_CLEAN + P_TWO:
+        return ["none"]
+    if u < P_CLEAN + P_TWO:
+        if suite == "widened" and rng.random() < P_SLOW_PAIR_WIDENED:
+            return ["creep", str(rng.choice(["temperature", "load"]))]
         pool = [e for e in ALLOWED if e != "hysteresis"]
-        hidden = [str(x) for x in rng.choice(pool, 2, replace=False)]
-    else:
-        hidden = [str(rng.choice(list(ALLOWED)))]
-    return _draw(rng, seed, hidden, {})
+        return [str(x) for x in rng.choice(pool, 2, replace=False)]
+    return [str(rng.choice(list(ALLOWED)))]
 
 
-def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: dict[str, str]) -> Case:
+def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: dict[str, str],
+          suite: str = "classic") -> Case:
     """The rest of a case once its hidden effects are chosen (forms in ``fixed_forms`` are not drawn)."""
+    families, allowed, forms_of = ((FAMILIES_WIDENED, ALLOWED_WIDENED, FORMS_WIDENED) if suite == "widened"
+                                   else (FAMILIES, ALLOWED, FORMS))
     # the family: one that every hidden effect may be drawn with
-    fams = [f for f in FAMILIES if all(h == "none" or f in ALLOWED[h] for h in hidden)]
+    fams = [f for f in families if all(h == "none" or f in allowed[h] for h in hidden)]
     family = str(rng.choice(fams, p=None))
     forms: dict[str, str] = {}
     for h in hidden:
@@ -677,7 +774,7 @@ def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: d
         elif h in fixed_forms:
             forms[h] = fixed_forms[h]
         elif h != "none":
-            forms[h] = str(rng.choice(list(FORMS[h])))
+            forms[h] = str(rng.choice(list(forms_of[h])))
     unipolar = family in UNIPOLAR
     unit = ("V" if rng.random() < 0.8 else "A") if unipolar else ("A" if rng.random() < 0.7 else "V")
     u_max = _logu(rng, 0.5, 6.0) if unit == "A" else _logu(rng, 5.0, 150.0)
@@ -705,7 +802,8 @@ def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: d
     case = Case(seed=seed, hidden=hidden, forms=forms, family=family, spec=spec, sample_rate_hz=fs, input_unit=unit,
                 actuator_range=(lo, hi), max_rate=0.0, tables={"hysteresis": hyst},
                 run_tables=[{} for _ in range(n_runs)], pre=[], post=[], runs=runs, split=split, noise_std_um=0.0,
-                quantization_um=0.0, output_span_um=0.0, aux_sensors={}, frequencies_hz=(f_lo, f_hi), notes=[note])
+                quantization_um=0.0, output_span_um=0.0, aux_sensors={}, frequencies_hz=(f_lo, f_hi), notes=[note],
+                suite=suite)
     # the slew limit: fast enough for every smooth segment (1.2x its steepest slope)
     case.max_rate = 1e12
     smooth = 0.0
@@ -815,6 +913,6 @@ if __name__ == "__main__":  # a quick look at some draws
     import sys
 
     for s in range(int(sys.argv[1]) if len(sys.argv) > 1 else 10):
-        c = draw_case(s)
+        c = draw_case(s, sys.argv[2] if len(sys.argv) > 2 else "classic")
         print(s, c.kind, c.label, c.family, c.spec, c.sample_rate_hz, c.input_unit, len(c.runs), c.samples(),
               {k: round(v, 1) for k, v in c.snr.items()}, f"noise {c.noise_std_um / c.output_span_um:.4f}")

@@ -9,7 +9,8 @@ Signal chain per sample (each stage switchable, see :mod:`hilbench.sim.plant` fo
 
     command -> amplifier (gain, bandwidth, slew, output limit) -> delay -> normalise (input_scale)
       -> input shaping (fractional polynomial, FPMPI)            [saturation at the input]
-      -> hysteresis (M-play family: play / one-sided / M-play, or ISSF-Duhem) + asymmetry polynomial
+      -> hysteresis (M-play family: play / one-sided / M-play, ISSF-Duhem, Preisach relays or
+         Bouc-Wen) + asymmetry polynomial
       -> saturation (tanh) -> rate-dependence (m-th power velocity damping, 003)
       -> output_scale (um) x temperature gain x load gain -> creep (Kelvin-Voigt chain)
       -> - load compliance -> dynamics (IIR, direct form II transposed) -> + thermal strain
@@ -33,7 +34,7 @@ S_AMP_SLEW = 3  # max change per sample (inf = none)
 S_AMP_LO = 4
 S_AMP_HI = 5
 S_INPUT_SCALE = 6
-S_MODEL = 7  # 0 linear, 1 M-play family (PI), 2 ISSF-Duhem
+S_MODEL = 7  # 0 linear, 1 M-play family (PI), 2 ISSF-Duhem, 3 Preisach, 4 Bouc-Wen
 S_P0 = 8  # linear term of the PI family
 S_DUHEM_ALPHA = 9
 S_DUHEM_BETA = 10
@@ -64,13 +65,20 @@ S_RANGE_NAN = 34  # 1: out-of-range readings are NaN, 0: clipped to the range
 S_FS = 35
 S_DYN_ON = 36
 S_DELAY = 37  # samples
-N_SCALARS = 38
+S_BW_A = 38  # Bouc-Wen A (z per normalised input unit)
+S_BW_BETA = 39
+S_BW_GAMMA = 40
+S_BW_N = 41
+S_BW_DU_MAX = 42  # largest input change of one Bouc-Wen sub-step (see bouc_wen_step)
+S_BW_W = 43  # weight of z in the output: +1 y = k u + z, -1 the piezo form y = k u - z
+N_SCALARS = 44
 
 # -- indices into the scalar state vector X ------------------------------------------------------
 X_AMP_Y = 0
 X_V_PREV = 1  # previous normalised input (Duhem, rate)
 X_DUHEM_W = 2
 X_RATE_V_PREV = 3
+X_BW_Z = 4  # Bouc-Wen hysteretic state z
 X_DELAY_IDX = 9
 X_N = 10  # samples processed
 X_STARTED = 11
@@ -220,6 +228,52 @@ def duhem_w_block(u: np.ndarray, alpha: float, beta: float, state: np.ndarray, o
 
 
 @njit(cache=True, inline="always")
+def _bw_slope(z: float, h: float, ah: float, a: float, beta: float, gamma: float, n: float) -> float:
+    """dz over an input change h (|h| = ah): A h - beta |h| |z|^(n-1) z - gamma h |z|^n."""
+    az = abs(z)
+    if n == 1.0:
+        return a * h - beta * ah * z - gamma * h * az
+    azn1 = az ** (n - 1.0)
+    return a * h - beta * ah * azn1 * z - gamma * h * azn1 * az
+
+
+@njit(cache=True, inline="always")
+def bouc_wen_step(z: float, du: float, a: float, beta: float, gamma: float, n: float, du_max: float) -> float:
+    """Bouc-Wen z after an input change du: z' = A u' - beta |u'| |z|^(n-1) z - gamma u' |z|^n.
+
+    The equation is rate independent (dz/du depends on the sign of du only), so it is integrated over
+    the input, classic RK4 in ceil(|du| / du_max) equal sub-steps: du_max = 0.25 / L with L the
+    largest slope of dz/du in z over |z| <= z_max (:func:`bouc_wen_du_max`), so a sub-step is
+    well inside RK4's stability limit (|h L| < 2.78) and its error (h L)^5 is negligible; a
+    full-range step of the drive then takes a few dozen sub-steps, a smooth drive one.
+    """
+    if du == 0.0:
+        return z
+    m = min(int(abs(du) / du_max) + 1, 100000)
+    h = du / m
+    ah = abs(h)
+    for _ in range(m):
+        k1 = _bw_slope(z, h, ah, a, beta, gamma, n)
+        k2 = _bw_slope(z + 0.5 * k1, h, ah, a, beta, gamma, n)
+        k3 = _bw_slope(z + 0.5 * k2, h, ah, a, beta, gamma, n)
+        k4 = _bw_slope(z + k3, h, ah, a, beta, gamma, n)
+        z += (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+    return z
+
+
+def bouc_wen_z_max(a: float, beta: float, gamma: float, n: float) -> float:
+    """The bound of |z| from rest, (A / (beta + gamma))^(1/n) (beta >= |gamma|, beta + gamma > 0)."""
+    return (a / (beta + gamma)) ** (1.0 / n)
+
+
+def bouc_wen_du_max(a: float, beta: float, gamma: float, n: float) -> float:
+    """Sub-step of :func:`bouc_wen_step`: 0.25 / L, L = n (beta + |gamma|) z_max^(n-1) bounds
+    |d(dz/du)/dz| for |z| <= z_max."""
+    slope = n * (beta + abs(gamma)) * bouc_wen_z_max(a, beta, gamma, n) ** (n - 1.0)
+    return 0.25 / slope
+
+
+@njit(cache=True, inline="always")
 def _shape(S: np.ndarray, dz_r: np.ndarray, dz_g: np.ndarray, w: float) -> float:
     shape = S[S_DUHEM_SHAPE]
     if shape == 1.0:  # Gompertz, 001 eq. 20
@@ -259,6 +313,8 @@ def plant_step(
     op_r: np.ndarray,
     op_w: np.ndarray,
     op_eta: np.ndarray,
+    relay_a: np.ndarray,
+    relay_b: np.ndarray,
     asym: np.ndarray,
     dz_r: np.ndarray,
     dz_g: np.ndarray,
@@ -341,6 +397,21 @@ def plant_step(
             wd = ba * vs - s * ba / alpha + (wd - (ba * X[X_V_PREV] - s * ba / alpha)) * math.exp(-alpha * abs(du))
             X[X_DUHEM_W] = wd
         h = S[S_DUHEM_K1] * vs + S[S_DUHEM_K2] * _shape(S, dz_r, dz_g, wd)
+    elif model == 3.0:
+        # Preisach: relay hysterons (up at alpha_i = relay_a, down at beta_i = relay_b <= alpha_i),
+        # states +-1 in op_state, weights op_w
+        h = S[S_P0] * vs
+        for i in range(relay_a.shape[0]):
+            r = op_state[i]
+            r = 1.0 if vs >= relay_a[i] else r
+            r = -1.0 if vs <= relay_b[i] else r
+            op_state[i] = r
+            h += op_w[i] * r
+    elif model == 4.0:
+        z = bouc_wen_step(X[X_BW_Z], vs - X[X_V_PREV], S[S_BW_A], S[S_BW_BETA], S[S_BW_GAMMA], S[S_BW_N],
+                          S[S_BW_DU_MAX])
+        X[X_BW_Z] = z
+        h = S[S_P0] * vs + S[S_BW_W] * z
     else:
         h = S[S_P0] * vs
     X[X_V_PREV] = vs
@@ -420,6 +491,8 @@ def plant_block(
     op_r: np.ndarray,
     op_w: np.ndarray,
     op_eta: np.ndarray,
+    relay_a: np.ndarray,
+    relay_b: np.ndarray,
     asym: np.ndarray,
     dz_r: np.ndarray,
     dz_g: np.ndarray,
@@ -446,7 +519,7 @@ def plant_block(
     for n in range(u.shape[0]):
         meas, y, drive = plant_step(
             u[n], temperature[n] if temp_on else 0.0, load[n] if load_on else 0.0, noise[n],
-            S, in_exp, in_w, op_r, op_w, op_eta, asym, dz_r, dz_g, rate_kp, rate_cp, rate_mp, creep_g, creep_a,
+            S, in_exp, in_w, op_r, op_w, op_eta, relay_a, relay_b, asym, dz_r, dz_g, rate_kp, rate_cp, rate_mp, creep_g, creep_a,
             dyn_b, dyn_a, X, op_state, creep_state, dyn_state, delay_buf, tp_state,
         )
         out_measured[n] = meas
@@ -456,13 +529,14 @@ def plant_block(
 
 #: The plant's parameter and state arrays in :func:`plant_step` order, plus ``out`` (true output,
 #: drive of the last step); :class:`hilbench.sim.plant.Plant` keeps them as views of one flat
-#: buffer so that step mode passes two arrays instead of twenty-two (each array argument of a
-#: numba call from Python costs about 50 ns to unbox).
+#: buffer so that step mode passes two arrays instead of twenty-four (each array argument of a
+#: numba call from Python costs about 50 ns to unbox). The first N_PARAM_ARRAYS are parameters.
 PLANT_ARRAYS = (
-    "S", "in_exp", "in_w", "op_r", "op_w", "op_eta", "asym", "dz_r", "dz_g", "rate_kp", "rate_cp", "rate_mp",
+    "S", "in_exp", "in_w", "op_r", "op_w", "op_eta", "relay_a", "relay_b", "asym", "dz_r", "dz_g", "rate_kp", "rate_cp", "rate_mp",
     "creep_g", "creep_a", "dyn_b", "dyn_a", "X", "op_state", "creep_state", "dyn_state", "delay_buf", "tp_state",
     "out",
 )
+N_PARAM_ARRAYS = 18
 #: rows of the per-sample inputs of :func:`plant_step_flat`
 B_NOISE = 0
 B_TEMPERATURE = 1
@@ -476,7 +550,7 @@ def _view(F: np.ndarray, L: np.ndarray, k: int) -> np.ndarray:
 
 @njit(cache=True, inline="always")
 def plant_views(F: np.ndarray, L: np.ndarray) -> tuple:
-    """The 22 parameter and state arrays of :func:`plant_step` as views of the flat buffer ``F``
+    """The 24 parameter and state arrays of :func:`plant_step` as views of the flat buffer ``F``
     (array k is ``F[L[2k]:L[2k+1]]``, see :data:`PLANT_ARRAYS`). A compiled loop takes them once
     before its time loop: built per sample they cost ~35 ns (the offsets are reloaded every time,
     since the compiler cannot rule out that writes to F change L)."""
@@ -484,23 +558,23 @@ def plant_views(F: np.ndarray, L: np.ndarray) -> tuple:
         _view(F, L, 0), _view(F, L, 1), _view(F, L, 2), _view(F, L, 3), _view(F, L, 4), _view(F, L, 5),
         _view(F, L, 6), _view(F, L, 7), _view(F, L, 8), _view(F, L, 9), _view(F, L, 10), _view(F, L, 11),
         _view(F, L, 12), _view(F, L, 13), _view(F, L, 14), _view(F, L, 15), _view(F, L, 16), _view(F, L, 17),
-        _view(F, L, 18), _view(F, L, 19), _view(F, L, 20), _view(F, L, 21),
+        _view(F, L, 18), _view(F, L, 19), _view(F, L, 20), _view(F, L, 21), _view(F, L, 22), _view(F, L, 23),
     )
 
 
 @njit(cache=True, inline="always", _nrt=False)
 def plant_step_views(u: float, temperature: float, load: float, noise: float, V: tuple) -> tuple[float, float, float]:
-    """:func:`plant_step` with its 22 arrays as the tuple of :func:`plant_views`."""
+    """:func:`plant_step` with its 24 arrays as the tuple of :func:`plant_views`."""
     return plant_step(
         u, temperature, load, noise, V[0], V[1], V[2], V[3], V[4], V[5], V[6], V[7], V[8], V[9], V[10], V[11],
-        V[12], V[13], V[14], V[15], V[16], V[17], V[18], V[19], V[20], V[21],
+        V[12], V[13], V[14], V[15], V[16], V[17], V[18], V[19], V[20], V[21], V[22], V[23],
     )
 
 
 @njit(cache=True, inline="always")
 def plant_out_offset(L: np.ndarray) -> int:
     """Where the true output and the drive of the last step sit in the flat buffer (``out``)."""
-    return L[44]
+    return L[48]
 
 
 @njit(cache=True, _nrt=False, error_model="numpy")

@@ -23,6 +23,7 @@ from hilbench.errors import ConfigError
 from hilbench.sim import kernels as K
 from hilbench.sim import trajectories
 from hilbench.sim.dynamics import discretize_dynamics
+from hilbench.sim.preisach import preisach_grid
 
 _EMPTY = np.zeros(0)
 
@@ -106,8 +107,22 @@ class Plant:
             if h["shape"] in ("gompertz", "tanh"):
                 S[K.S_MU_A], S[K.S_MU_B] = h["mu"]
             self.op_r = self.op_w = _EMPTY
+        elif model == "preisach":
+            S[K.S_MODEL] = 3.0
+            self.relay_a, self.relay_b, self.op_w, self.op_state0 = preisach_grid(h)
+            self.op_r = _EMPTY
+        elif model == "bouc-wen":
+            S[K.S_MODEL] = 4.0
+            bw = (h["a"], h["beta"], h["gamma"], h["n"])
+            S[K.S_BW_A], S[K.S_BW_BETA], S[K.S_BW_GAMMA], S[K.S_BW_N] = bw
+            S[K.S_BW_DU_MAX] = K.bouc_wen_du_max(*bw)
+            S[K.S_BW_W] = h["z_weight"]
+            self.op_r = self.op_w = _EMPTY
         else:
             S[K.S_MODEL] = 1.0
+        if model != "preisach":
+            self.relay_a = self.relay_b = _EMPTY
+            self.op_state0 = np.zeros(self.op_r.shape[0])
         eta_default = {"play": 1.0, "one-sided-play": 0.0}.get(model, 1.0)
         self.op_eta = (
             np.asarray(h["eta"], float) if model == "m-play" else np.full(self.op_r.shape, eta_default)
@@ -190,9 +205,9 @@ class Plant:
 
     def _pack(self) -> None:
         """Parameters and fresh state as views of one flat buffer (see :data:`K.PLANT_ARRAYS`)."""
-        arrays = {name: getattr(self, name) for name in K.PLANT_ARRAYS[:16]}
+        arrays = {name: getattr(self, name) for name in K.PLANT_ARRAYS[:K.N_PARAM_ARRAYS]}
         arrays["X"] = np.zeros(K.N_STATES)
-        arrays["op_state"] = np.zeros(self.op_r.shape[0])
+        arrays["op_state"] = self.op_state0  # play outputs at 0, or the Preisach relays demagnetised
         arrays["creep_state"] = np.zeros(self.creep_g.shape[0])
         arrays["dyn_state"] = np.zeros(max(len(self.dyn_a) - 1, 1))
         arrays["delay_buf"] = np.zeros(max(self.delay_samples, 1))
@@ -295,7 +310,7 @@ class Plant:
         drive = np.empty(n)
         K.plant_block(
             u, temperature, load, noise, self.S, self.in_exp, self.in_w, self.op_r, self.op_w, self.op_eta,
-            self.asym, self.dz_r, self.dz_g, self.rate_kp, self.rate_cp, self.rate_mp, self.creep_g,
+            self.relay_a, self.relay_b, self.asym, self.dz_r, self.dz_g, self.rate_kp, self.rate_cp, self.rate_mp, self.creep_g,
             self.creep_a, self.dyn_b, self.dyn_a, self.X, self.op_state, self.creep_state, self.dyn_state,
             self.delay_buf, self.tp_state, measured, true, drive,
         )

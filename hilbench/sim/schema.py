@@ -15,6 +15,7 @@ from hilbench.errors import ConfigError
 from hilbench.schema import Key, check_table
 from hilbench.sim import trajectories
 from hilbench.sim.dynamics import discretize_dynamics
+from hilbench.sim.preisach import preisach_grid
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,8 @@ PLANT_SCHEMA: dict[str, dict[str, Key]] = {
     "hysteresis": {
         **_ENABLED,
         "model": Key(
-            "str", required=True, choices=("linear", "play", "one-sided-play", "m-play", "duhem")
+            "str", required=True,
+            choices=("linear", "play", "one-sided-play", "m-play", "duhem", "preisach", "bouc-wen"),
         ),
         "input_scale": Key("number", default=1.0, minimum=0, exclusive_minimum=True,
                            doc="command units per normalised input unit"),
@@ -87,12 +89,28 @@ PLANT_SCHEMA: dict[str, dict[str, Key]] = {
         "input_exponents": Key("numbers", default=[], doc="FPMPI input polynomial exponents (000)"),
         "input_weights": Key("numbers", default=[]),
         "alpha": Key("number", minimum=0, exclusive_minimum=True, doc="Duhem (001)"),
-        "beta": Key("number"),
+        "beta": Key("number", doc="Duhem (001) or Bouc-Wen beta (1/normalised input unit^n)"),
         "shape": Key("str", default="none", choices=("none", "gompertz", "tanh", "dead-zone")),
         "k1": Key("number", default=0.0),
         "k2": Key("number", default=1.0),
         "mu": Key("numbers", default=[], doc="shape parameters: G/M two, D six (mu5..mu10)"),
         "n_dead_zone": Key("int", default=0, minimum=0, doc="D shape: operators per side"),
+        # Bouc-Wen: z' = A u' - beta |u'| |z|^(n-1) z - gamma u' |z|^n, output linear_gain u + z_weight z
+        "a": Key("number", default=1.0, minimum=0, exclusive_minimum=True, doc="Bouc-Wen A"),
+        "gamma": Key("number", default=0.0, doc="Bouc-Wen gamma; |gamma| <= beta"),
+        "n": Key("number", default=1.0, minimum=1.0, doc="Bouc-Wen exponent"),
+        "z_weight": Key("number", default=1.0, doc="Bouc-Wen: weight of z in the output; +1 the stop-like "
+                        "y = k u + z (loop of z clockwise), -1 the piezo form y = d u - h (Low & Guo 1995): lags"),
+        # Preisach: relay hysterons on a grid, factorised Gaussian density (hilbench.sim.preisach)
+        "levels": Key("int", default=40, minimum=2, maximum=400, doc="Preisach: grid cells per axis"),
+        "switching_range": Key("pair", default=[-1.0, 1.0], doc="Preisach: [low, high] of alpha and beta, "
+                               "normalised input units"),
+        "coercive_mean": Key("number", default=0.2, minimum=0, doc="Preisach: mean relay half-width"),
+        "coercive_std": Key("number", default=0.15, minimum=0, exclusive_minimum=True),
+        "interaction_std": Key("number", default=1.0, minimum=0, exclusive_minimum=True,
+                               doc="Preisach: spread of the relay centres"),
+        "scatter_seed": Key("int", default=0, minimum=0, doc="Preisach: 0 cell centres, else fields "
+                            "scattered within their cells by this seed"),
     },
     "asymmetry": {**_ENABLED, "coefficients": Key("numbers", required=True, doc="c0 + c1 v + c2 v^2 + ...")},
     "saturation": {**_ENABLED, "level": Key("number", required=True, minimum=0, exclusive_minimum=True)},
@@ -187,6 +205,16 @@ def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str, sample
             raise ConfigError(
                 f"[plant.hysteresis] mu: shape {h['shape']!r} needs {need} parameters, got {len(h['mu'])}", where=file
             )
+    if h["model"] == "bouc-wen":
+        _check_bouc_wen(h, file)
+    if h["model"] == "preisach":
+        lo, hi = h["switching_range"]
+        if not lo < hi:
+            raise ConfigError(f"[plant.hysteresis] switching_range = [{lo}, {hi}]: expected low < high", where=file)
+        try:
+            preisach_grid(h)
+        except ConfigError as exc:
+            raise ConfigError(exc.message, where=file) from None
     d = plant.get("dynamics")
     if d is not None:
         need_keys = {
@@ -206,3 +234,15 @@ def _check_plant_consistency(plant: dict[str, dict[str, Any]], file: str, sample
         raise ConfigError("[plant.creep] gains and time_constants_s must have the same length", where=file)
 
 
+def _check_bouc_wen(h: dict[str, Any], file: str) -> None:
+    """z stays bounded by (A / (beta + gamma))^(1/n) for beta >= |gamma| and beta + gamma > 0 (the
+    usual condition; Ismail, Ikhouane, Rodellar, Arch. Comput. Methods Eng. 16 (2009), sec. 3)."""
+    beta, gamma = h["beta"], h["gamma"]
+    if beta is None:
+        raise ConfigError("[plant.hysteresis] missing key 'beta' (needed by model 'bouc-wen')", where=file)
+    if beta < abs(gamma):
+        raise ConfigError(f"[plant.hysteresis] beta = {beta} < |gamma| = {abs(gamma)}: Bouc-Wen needs "
+                          "beta >= |gamma| for a bounded z", where=file)
+    if not beta + gamma > 0:
+        raise ConfigError(f"[plant.hysteresis] beta + gamma = {beta + gamma}: Bouc-Wen needs beta + gamma > 0 "
+                          "for a bounded z", where=file)

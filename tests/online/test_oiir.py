@@ -55,7 +55,7 @@ def gmm_plant(u: np.ndarray, temperature_degC: np.ndarray, seed: int = 0) -> np.
     out, true, drive = np.empty(n), np.empty(n), np.empty(n)
     K.plant_block(np.ascontiguousarray(u, float), np.ascontiguousarray(temperature_degC, float), e,
                   np.random.default_rng(seed).standard_normal(n), S, IN_EXP, IN_W, OP_R, OP_W,
-                  np.zeros(OP_R.size), e, e, e, np.ones(1), np.zeros(1), np.ones(1), e, e, b, a,
+                  np.zeros(OP_R.size), e, e, e, e, e, np.ones(1), np.zeros(1), np.ones(1), e, e, b, a,
                   np.zeros(K.N_STATES), np.zeros(OP_R.size), e, np.zeros(a.size - 1), np.zeros(1),
                   np.zeros(K.N_TP), out, true, drive)
     return out
