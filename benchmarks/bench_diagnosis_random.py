@@ -7,6 +7,7 @@ it was never tuned to?
     python benchmarks/bench_diagnosis_random.py --only 3 17 42        # these case seeds
     python benchmarks/bench_diagnosis_random.py --regressions --workers 2   # every seeded regression
     python benchmarks/bench_diagnosis_random.py --slow-pair creep+warming --only 0 1 2 --auto  # issue 62
+    python benchmarks/bench_diagnosis_random.py --confusable rate-delay --only 0 1 2 --auto    # issue 62
 
 Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
 --cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
@@ -57,17 +58,23 @@ TARGET_REDUCTION = 3.0
 MAX_WORKERS = 2
 
 
-def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None) -> dict[str, Any]:
-    """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``);
-    never raises (an exception is the case's result)."""
+def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None,
+             confusable: str | None = None) -> dict[str, Any]:
+    """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``;
+    with ``confusable``, one of ``confusable_cases.CONFUSABLE``); never raises (an exception is the
+    case's result)."""
+    import confusable_cases as CC
     import diagnosis_cases as DC
 
     t0 = time.perf_counter()
     out: dict[str, Any] = {"seed": seed}
     try:
-        case = DC.draw_case(seed) if slow_pair is None else DC.draw_slow_pair(seed, slow_pair)
+        case = (DC.draw_slow_pair(seed, slow_pair) if slow_pair is not None else
+                CC.draw_confusable(seed, confusable) if confusable is not None else DC.draw_case(seed))
         if slow_pair is not None:
             out["slow_pair"] = slow_pair
+        if confusable is not None:
+            out["confusable"] = confusable
         out.update(kind=case.kind, hidden=case.hidden, forms=case.forms, family=case.family, spec=case.spec,
                    sample_rate_hz=case.sample_rate_hz, input_unit=case.input_unit, runs=len(case.runs),
                    split=case.split, snr=case.snr, noise_pct=100.0 * case.noise_std_um / case.output_span_um)
@@ -118,7 +125,7 @@ def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None) -
 _JSONL: str | None = None
 
 
-def run_case_of(args: tuple[int, bool, str, str | None]) -> dict[str, Any]:
+def run_case_of(args: tuple[int, bool, str, str | None, str | None]) -> dict[str, Any]:
     """One job of :func:`run` (a tuple: what a Dask task carries)."""
     return run_case(*args)
 
@@ -231,12 +238,13 @@ def summarize(results: list[dict[str, Any]], auto: bool) -> dict[str, Any]:
 
 
 def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
-        only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None) -> dict[str, Any]:
+        only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None,
+        confusable: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
     n_auto = len(seeds) if auto_cases is None else min(auto_cases, len(seeds))
-    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair) for i, s in enumerate(seeds)]
+    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair, confusable) for i, s in enumerate(seeds)]
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
@@ -249,7 +257,8 @@ def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, a
     out: dict[str, Any] = {
         "environment": C.environment(),
         "settings": {"cases": len(seeds), "first_seed": seeds[0] if seeds else None, "workers": workers,
-                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair},
+                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair,
+                     "confusable": confusable},
         **summarize(results, auto),
         "runtime": {"wall_s": wall, "per_case_median_s": statistics.median([r["seconds"] for r in results if "seconds" in r])
                     if any("seconds" in r for r in results) else None,
@@ -279,6 +288,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--slow-pair", type=str, default=None,
                     help="cases of diagnosis_cases.SLOW_PAIRS (creep+warming, creep+load-staircase, warming) "
                          "drawn per seed instead of draw_case's")
+    ap.add_argument("--confusable", type=str, default=None,
+                    help="cases of confusable_cases.CONFUSABLE (saturation-asymmetry, rate-delay and their "
+                         "partners) drawn per seed instead of draw_case's")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
     ap.add_argument("--summarize", type=str, default=None,
@@ -296,7 +308,7 @@ def main(argv: list[str] | None = None) -> None:
         import diagnosis_regressions as DR
 
         only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair)
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair, a.confusable)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]
     C.print_document(doc, a.output)
