@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 import confusable_cases as CC
 import diagnosis_cases as DC
 
-from hilbench.diagnosis.confusable import lags_by_rate, parity
+from hilbench.diagnosis.confusable import lags_by_rate, parity, signature
 from hilbench.diagnosis.diagnose import diagnose
 from hilbench.diagnosis.input_motion import motion
 from hilbench.diagnosis.ranking import pattern_decides_for
@@ -200,3 +200,17 @@ def test_velocity_damping_under_multitone_drives_is_rate_dependence_not_a_delay(
     assert L["favours"] == "rate-dependence", L
     assert L["lag_s"] <= -CONFUSABLE_Z * L["lag_standard_error_s"]
     assert "rate-dependence" in delay.explanation.split("standard errors better than a lag")[-1]
+
+
+def test_both_members_get_the_same_numbers_measured_once_per_rows():
+    rng = np.random.default_rng(6)
+    u = _triangles(rng, 0.0)
+    h = u + 0.3 * _play(u, 0.2)
+    rows = _rows(u, h, _knee(h, 0.9, 2.5) + rng.normal(0.0, NOISE, u.size))
+    a, b = signature("saturation", rows), signature("asymmetry", rows)
+    assert a == b and a["parity"]["favours"] == "saturation"
+    a["parity"]["favours"] = "changed"  # a verdict's own copy
+    assert signature("asymmetry", rows)["parity"]["favours"] == "saturation"
+    other = _rows(u, h, h + 0.25 * u**2 + rng.normal(0.0, NOISE, u.size))  # new rows, measured anew
+    assert signature("saturation", other)["parity"]["favours"] == "asymmetry"
+    assert signature("creep", rows) == {}
