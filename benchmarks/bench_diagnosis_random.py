@@ -8,6 +8,7 @@ it was never tuned to?
     python benchmarks/bench_diagnosis_random.py --regressions --workers 2   # every seeded regression
     python benchmarks/bench_diagnosis_random.py --slow-pair creep+warming --only 0 1 2 --auto  # issue 62
     python benchmarks/bench_diagnosis_random.py --suite widened --seed 9700 --cases 300 --auto  # fresh seeds
+    python benchmarks/bench_diagnosis_random.py --confusable rate-delay --only 0 1 2 --auto    # issue 62
 
 Cases come from ``benchmarks/diagnosis_cases.py`` (``draw_case(seed)``, seeds ``--seed`` .. ``--seed +
 --cases - 1``): a simulated actuator with a hidden effect (or none, or two) of a form drawn at
@@ -79,17 +80,22 @@ def seed_class(seed: int) -> str:
 
 
 def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None,
-             suite: str = "classic") -> dict[str, Any]:
+             suite: str = "classic", confusable: str | None = None) -> dict[str, Any]:
     """Draw, write and diagnose one case (with ``slow_pair``, a case of ``diagnosis_cases.SLOW_PAIRS``;
-    else of ``suite``); never raises (an exception is the case's result)."""
+    with ``confusable``, one of ``confusable_cases.CONFUSABLE``; else of ``suite``); never raises (an
+    exception is the case's result)."""
+    import confusable_cases as CC
     import diagnosis_cases as DC
 
     t0 = time.perf_counter()
     out: dict[str, Any] = {"seed": seed, "seed_class": seed_class(seed), "suite": suite}
     try:
-        case = DC.draw_case(seed, suite) if slow_pair is None else DC.draw_slow_pair(seed, slow_pair)
+        case = (DC.draw_slow_pair(seed, slow_pair) if slow_pair is not None else
+                CC.draw_confusable(seed, confusable) if confusable is not None else DC.draw_case(seed, suite))
         if slow_pair is not None:
             out["slow_pair"] = slow_pair
+        if confusable is not None:
+            out["confusable"] = confusable
         out.update(kind=case.kind, hidden=case.hidden, forms=case.forms, family=case.family, spec=case.spec,
                    sample_rate_hz=case.sample_rate_hz, input_unit=case.input_unit, runs=len(case.runs),
                    split=case.split, snr=case.snr, noise_pct=100.0 * case.noise_std_um / case.output_span_um)
@@ -140,7 +146,7 @@ def run_case(seed: int, auto: bool, folder: str, slow_pair: str | None = None,
 _JSONL: str | None = None
 
 
-def run_case_of(args: tuple[int, bool, str, str | None, str]) -> dict[str, Any]:
+def run_case_of(args: tuple[int, bool, str, str | None, str, str | None]) -> dict[str, Any]:
     """One job of :func:`run` (a tuple: what a Dask task carries)."""
     return run_case(*args)
 
@@ -344,12 +350,12 @@ def note_tables(report: dict[str, Any]) -> None:
 
 def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, auto_cases: int | None = None,
         only: list[int] | None = None, scheduler: str | None = None, slow_pair: str | None = None,
-        suite: str = "classic") -> dict[str, Any]:
+        suite: str = "classic", confusable: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-diag-random-")
     C.use_private_numba_cache(tmp.name)
     seeds = list(only) if only else list(range(seed, seed + cases))
     n_auto = len(seeds) if auto_cases is None else min(auto_cases, len(seeds))
-    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair, suite) for i, s in enumerate(seeds)]
+    jobs = [(s, auto and i < n_auto, tmp.name, slow_pair, suite, confusable) for i, s in enumerate(seeds)]
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
@@ -362,7 +368,8 @@ def run(cases: int = 200, seed: int = 0, workers: int = 1, auto: bool = False, a
     out: dict[str, Any] = {
         "environment": C.environment(),
         "settings": {"cases": len(seeds), "first_seed": seeds[0] if seeds else None, "workers": workers,
-                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair, "suite": suite},
+                     "auto_cases": n_auto if auto else 0, "slow_pair": slow_pair, "suite": suite,
+                     "confusable": confusable},
         **summarize(results, auto),
         **seed_class_report(results, auto),
         "runtime": {"wall_s": wall, "per_case_median_s": statistics.median([r["seconds"] for r in results if "seconds" in r])
@@ -396,6 +403,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--suite", choices=("classic", "widened"), default="classic",
                     help="diagnosis_cases suite: classic (the pinned seeds' draws) or widened (issue 62: Preisach "
                          "and Bouc-Wen bases, more soft knees, creep with a slow channel)")
+    ap.add_argument("--confusable", type=str, default=None,
+                    help="cases of confusable_cases.CONFUSABLE (saturation-asymmetry, rate-delay and their "
+                         "partners) drawn per seed instead of draw_case's")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each case's result to this file as it finishes")
     ap.add_argument("--summarize", type=str, default=None,
@@ -416,7 +426,8 @@ def main(argv: list[str] | None = None) -> None:
         import diagnosis_regressions as DR
 
         only = DR.seeds() + [seed for seed, _, _ in DR.POLYNOMIAL_ORDER if seed not in DR.seeds()]
-    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair, a.suite)
+    doc = run(a.cases, a.seed, a.workers, a.auto, a.auto_cases, only, a.scheduler, a.slow_pair, a.suite,
+              a.confusable)
     note_tables(doc)
     if a.regressions:
         doc["regressions_missed"] = [c["seed"] for c in doc["cases"] if not _hit(c)]

@@ -299,9 +299,10 @@ SEGMENT_P = np.array([0.18, 0.14, 0.16, 0.14, 0.12, 0.12, 0.08, 0.06])
 
 
 def _program(rng: np.random.Generator, fs: float, duration_s: float, lo: float, hi: float, unipolar: bool,
-             f_lo: float, f_hi: float, min_holds: int, periodic: bool = False) -> list[dict[str, Any]]:
-    """One run: rest, sometimes a power-on step, segments at drive frequencies spanning f_lo..f_hi,
-    sometimes holds between them (at least ``min_holds``)."""
+             f_lo: float, f_hi: float, min_holds: int, periodic: bool = False,
+             kinds: tuple[str, ...] | None = None) -> list[dict[str, Any]]:
+    """One run: rest, sometimes a power-on step, segments at drive frequencies spanning f_lo..f_hi
+    (of ``kinds`` only when given, drawn alike), sometimes holds between them (at least ``min_holds``)."""
     pieces: list[dict[str, Any]] = []
     rest = 0.0
     pieces.append({"kind": "hold", "level": rest, "duration_s": rng.uniform(0.15, 0.8)})
@@ -317,7 +318,7 @@ def _program(rng: np.random.Generator, fs: float, duration_s: float, lo: float, 
     hold_p = 0.35
     while t < duration_s and n_seg < 9:
         f = freqs[n_seg] if n_seg < 2 else _logu(rng, f_lo, f_hi)
-        kind = str(rng.choice(SEGMENT_KINDS, p=SEGMENT_P))
+        kind = str(rng.choice(SEGMENT_KINDS, p=SEGMENT_P)) if kinds is None else str(rng.choice(kinds))
         if periodic and kind in ("noise", "multitone", "chirp"):
             kind = "sine"
         if unipolar:
@@ -760,12 +761,14 @@ def draw_hidden(rng: np.random.Generator, suite: str = "classic") -> list[str]:
 
 
 def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: dict[str, str],
-          suite: str = "classic") -> Case:
-    """The rest of a case once its hidden effects are chosen (forms in ``fixed_forms`` are not drawn)."""
-    families, allowed, forms_of = ((FAMILIES_WIDENED, ALLOWED_WIDENED, FORMS_WIDENED) if suite == "widened"
-                                   else (FAMILIES, ALLOWED, FORMS))
+          suite: str = "classic", families: tuple[str, ...] | None = None,
+          segments: tuple[str, ...] | None = None) -> Case:
+    """The rest of a case once its hidden effects are chosen (forms in ``fixed_forms`` are not drawn;
+    the family among ``families`` and the segments among ``segments`` when given)."""
+    suite_families, allowed, forms_of = ((FAMILIES_WIDENED, ALLOWED_WIDENED, FORMS_WIDENED) if suite == "widened"
+                                         else (FAMILIES, ALLOWED, FORMS))
     # the family: one that every hidden effect may be drawn with
-    fams = [f for f in families if all(h == "none" or f in allowed[h] for h in hidden)]
+    fams = [f for f in (families or suite_families) if all(h == "none" or f in allowed[h] for h in hidden)]
     family = str(rng.choice(fams, p=None))
     forms: dict[str, str] = {}
     for h in hidden:
@@ -792,7 +795,8 @@ def _draw(rng: np.random.Generator, seed: int, hidden: list[str], fixed_forms: d
     for k in range(n_runs):
         label = {1: ["run"], 2: ["train", "test"], 3: ["train-a", "train-b", "test"]}[n_runs][k]
         runs.append({"label": label, "pieces": _program(rng, fs, run_s, lo, hi, unipolar, f_lo, f_hi, min_holds,
-                                                        periodic=forms.get("rate-dependence") == "frequency-gain")})
+                                                        periodic=forms.get("rate-dependence") == "frequency-gain",
+                                                        kinds=segments)})
     split: dict[str, Any] = ({"train_fraction": float(round(rng.uniform(0.55, 0.75), 3))} if layout == "fraction" else
                              {"train": [r["label"] for r in runs[:-1]], "test": [runs[-1]["label"]]})
     hyst, spec, note = _base_table(rng, family, u_max)

@@ -10,6 +10,7 @@ import math
 import numpy as np
 
 from hilbench import effects as E
+from hilbench.diagnosis import confusable
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import nested
 from hilbench.diagnosis.significance import improvement_test
@@ -31,11 +32,21 @@ def free_parameters(c: Candidate) -> int:
 
 
 def pattern_decides_for(a: Candidate, b: Candidate) -> bool:
-    """Whether the residual's pattern prefers ``a`` over ``b`` by SIGNATURE_MARGIN. Patterns do not
+    """Whether the residual's pattern prefers ``a`` over ``b``. For a confusable pair
+    (:mod:`hilbench.diagnosis.confusable`: saturation and asymmetry, rate-dependence and a delay) its
+    own signature decides where it stands CONFUSABLE_Z standard errors clear; where saturation's and
+    asymmetry's verdicts carry their parity, nothing else orders them (it replaces the variance
+    shares below, which were tuned on the tanh and knee forms; decision 0108). Otherwise by
+    SIGNATURE_MARGIN. Patterns do not
     decide when nested (the richer one explains more of any residual) nor when the drive cannot
     tell them apart: a purely even residual shows an odd signature of about the drive's
     ``parity_overlap``, so the two can differ by at most 1 - overlap, and below SIGNATURE_MARGIN a
     "difference" is the noise of the fits (a one-sided drive, overlap ~0.97)."""
+    by_pair = confusable.decides(a.effect, b.effect, a.evidence, b.evidence)
+    if by_pair is not None:
+        return by_pair
+    if confusable.pair_of(a.effect, b.effect) == "parity" and "parity" in a.evidence and "parity" in b.evidence:
+        return False  # the ends' parity measured and undecided: the variance shares do not overrule it
     if "signature" not in a.evidence or "signature" not in b.evidence:
         return False
     if nested(_signature_name(a.effect), _signature_name(b.effect)):

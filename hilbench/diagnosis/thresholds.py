@@ -103,6 +103,12 @@ POLISH_MIN_TRAIN_GAIN = 0.01
 #: A tie on validation error is broken by the residual's pattern when signatures differ this much.
 SIGNATURE_MARGIN = 0.2
 
+#: The signature of a confusable pair (hilbench/diagnosis/confusable.py) speaks only where the
+#: difference it measures stands this many standard errors clear of zero (about 1 in 370 by chance
+#: for a normal statistic): the ends' parity of saturation against asymmetry, the change of the
+#: equivalent lag with the input rate of rate-dependence against a delay.
+CONFUSABLE_Z = 3.0
+
 #: Two refits are never tied when the leader's validation mean square is below the other's by this
 #: factor, whatever the block tests say: a gain concentrated in a few blocks (a knee at the largest
 #: drive) leaves them little power (hilbench/diagnosis/significance.py), and half the error is not

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from hilbench import effects as E
+from hilbench.diagnosis import confusable
 from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import (
     EVIDENCE_CHECKS,
@@ -426,6 +427,9 @@ def verdict(base: FitResult, effect: str, new: FitResult, rows: ResidualRows, no
     elif plan is not None:
         checks["training_not_worse"] = new_t <= old_t * (1.0 + T.TRAINING_WORSE_TOLERANCE)
     sentence, evidence = explain(effect, rows)
+    # what tells this effect from its look-alike, if it has one (issue 62): reported, and the ranking's
+    evidence.update(confusable.signature(effect, rows))
+    sentence += confusable.sentence(effect, evidence, base.output_unit)
     signature = E.effect(effect).signature
     check = E.effect(effect).evidence_check
     refit_e = residual_errors(new, "all") if check is not None or signature in SLOW_SIGNATURES else None
