@@ -166,18 +166,21 @@ def test_the_pairs_signature_orders_the_pair_and_replaces_the_variance_shares():
     assert pattern_decides_for(rate, delay) and not pattern_decides_for(delay, rate)
 
 
-def _first(d) -> Candidate:
-    return d.effects[0]
+def _diagnosed(kind: str, seed: int, folder, hidden: str):
+    """A confusable case of ``kind`` written and diagnosed; the hidden effect must be significant and
+    ranked first (returned with the diagnosis)."""
+    case = CC.draw_confusable(seed, kind)
+    paths, kw = DC.write_case(case, folder)
+    d = diagnose(paths, case.spec, jobs=1, **kw)
+    first = d.effects[0]
+    assert first.effect == hidden and first.significant, [(c.effect, c.expected_gain) for c in d.effects]
+    return d, first
 
 
 def test_an_output_knee_on_a_play_base_is_saturation_by_its_parity(tmp_path):
     """Issue 62's saturation miss kind: an algebraic knee (p 6.2) of an off-centre output, 18862 samples
     at 2 kHz in two runs. Asymmetry is significant too (validation -58 % against saturation's -64 %)."""
-    case = CC.draw_confusable(6, "saturation-asymmetry")
-    paths, kw = DC.write_case(case, tmp_path)
-    d = diagnose(paths, case.spec, jobs=1, **kw)
-    first = _first(d)
-    assert first.effect == "saturation" and first.significant, [(c.effect, c.expected_gain) for c in d.effects]
+    d, first = _diagnosed("saturation-asymmetry", 6, tmp_path, "saturation")
     asym = next(c for c in d.effects if c.effect == "asymmetry")
     for c in (first, asym):  # the same signature in both verdicts, measured on the base's residual
         p = c.evidence["parity"]
@@ -190,11 +193,7 @@ def test_an_output_knee_on_a_play_base_is_saturation_by_its_parity(tmp_path):
 def test_velocity_damping_under_multitone_drives_is_rate_dependence_not_a_delay(tmp_path):
     """Issue 62's rate miss kind: velocity damping (m 1.2) on a one-sided play base under multi-tone
     drives only, 36682 samples at 5 kHz. The residual leads the model: no delay can."""
-    case = CC.draw_confusable(3, "rate-delay")
-    paths, kw = DC.write_case(case, tmp_path)
-    d = diagnose(paths, case.spec, jobs=1, **kw)
-    first = _first(d)
-    assert first.effect == "rate-dependence" and first.significant, [(c.effect, c.expected_gain) for c in d.effects]
+    d, _ = _diagnosed("rate-delay", 3, tmp_path, "rate-dependence")
     delay = next(c for c in d.effects if c.effect == "delay")
     L = delay.evidence["lag_by_rate"]
     assert L["favours"] == "rate-dependence", L
