@@ -57,7 +57,7 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.online.pid import PID
 
-__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error",
+__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error", "residual_spectrum",
            "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
 
 #: design targets over the whole local-gain range
@@ -235,6 +235,18 @@ def _binned_power(r: np.ndarray, run_fs: float, edges_hz: np.ndarray) -> np.ndar
     return np.bincount(k, weights=spec, minlength=edges_hz.size - 1)
 
 
+def residual_spectrum(residuals: list[tuple[np.ndarray, float]], fs: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """The mean-square power (um^2) of the residuals ((samples, their rate in Hz) per run) on one log
+    grid of SPECTRUM_BINS bins from the longest run's resolution to the loop's Nyquist frequency ``fs``
+    / 2 (a faster run's content above it is folded into the top bin): (bin centres in Hz, power per
+    bin, the longest run in s). The bins sum to the residuals' mean square."""
+    longest = max(r.size / rfs for r, rfs in residuals)
+    edges = np.concatenate([[0.0], np.geomspace(0.5 / longest, 0.5 * fs, SPECTRUM_BINS)])
+    power = sum(_binned_power(r, rfs, edges) for r, rfs in residuals) / max(sum(r.size for r, _ in residuals), 1)
+    centres = np.concatenate([[0.0], np.sqrt(edges[1:-1] * edges[2:])])
+    return centres, np.asarray(power, float), float(longest)
+
+
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
@@ -305,16 +317,11 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     lo, hi = min(lo, MIN_GAIN_BAND[0]), max(hi, MIN_GAIN_BAND[1])
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
-    # the residual's spectrum over all runs, on one log grid from the longest run's resolution to the
-    # loop's Nyquist frequency (a faster training run's content above it is folded into the top bin)
-    longest = max(r.size / rfs for r, rfs in residuals)
-    edges = np.concatenate([[0.0], np.geomspace(0.5 / longest, 0.5 * fs, SPECTRUM_BINS)])
-    power = sum(_binned_power(r, rfs, edges) for r, rfs in residuals) / max(sum(counts), 1)
-    centres = np.concatenate([[0.0], np.sqrt(edges[1:-1] * edges[2:])])
+    centres, power, longest = residual_spectrum(residuals, fs)
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
                           noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
                           residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
-                          residual_spectrum=(centres, np.asarray(power, float)), longest_run_s=float(longest))
+                          residual_spectrum=(centres, power), longest_run_s=longest)
 
 
 # ====================================================================================================

@@ -104,9 +104,8 @@ def _spectrum_loop(residual: np.ndarray) -> FD.IdentifiedLoop:
     """A unit-gain loop one sample late with a training residual: the design weighs ki against it."""
     loop = FD.IdentifiedLoop(FS, np.ones(1), np.ones(1), 2, 0.0, (0.8, 1.25), "test", noise_um=0.02,
                              bandwidth_hz=FS / 2, residual_um=float(np.sqrt(np.mean(residual ** 2))))
-    edges = np.concatenate([[0.0], np.geomspace(0.5 / (residual.size / FS), 0.5 * FS, FD.SPECTRUM_BINS)])
-    power = FD._binned_power(residual, FS, edges) / residual.size
-    loop.residual_spectrum = (np.concatenate([[0.0], np.sqrt(edges[1:-1] * edges[2:])]), power)
+    centres, power, _ = FD.residual_spectrum([(residual, FS)], FS)
+    loop.residual_spectrum = (centres, power)
     return loop
 
 
