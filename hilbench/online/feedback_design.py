@@ -57,8 +57,8 @@ import numpy as np
 from hilbench.errors import UserError
 from hilbench.online.pid import PID
 
-__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error", "residual_spectrum",
-           "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
+__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error",
+           "residual_spectrum", "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
 
 #: design targets over the whole local-gain range
 MIN_GAIN_MARGIN_DB = 6.0
