@@ -174,6 +174,10 @@ class Model:
         self.norm.setdefault("u_min", float(np.min(u)))
         self.norm.setdefault("u_max", float(np.max(u)))
         signals = self._joined_signals(runs, u)
+        if any(c.name == "dynamics" for c in self.components):
+            for c in self.components:
+                if c.name == "creep" and not c.params and "taus" not in c.constants:
+                    c.beside_dynamics()  # creep slower than the dynamics' settling (decision 0111)
         for c in self._searched_components():
             c.prepare(signals)
             c.fix_from_options()
