@@ -252,7 +252,8 @@ class _ColumnCache:
     def __init__(self, model: Model, runs: list[RunData]):
         self.model = model
         self.runs = runs
-        self.entries: dict[tuple[int, int], tuple[tuple[float, ...], Any, dict[str, Any]]] = {}
+        self.entries: dict[tuple[tuple[str, int], int], tuple[tuple[float, ...], Any, dict[str, Any]]] = {}
+        self.signals: dict[tuple[str, int], tuple[tuple[float, ...], Any]] = {}
 
     def _prefix_keys(self) -> list[tuple[float, ...]]:
         keys, values = [], []
@@ -272,29 +273,60 @@ class _ColumnCache:
         # a hysteresis block is copied only if a later component scales it in place
         scaled_later = [any(c.scales_hysteresis for c in model.components[i + 1:])
                         for i in range(len(model.components))]
+        shaping = model.input_shaping()
+        drive = tuple(p.value for p in shaping.shape()) if shaping is not None else ()
         out = []
-        for r, (run, states) in enumerate(model._walk(self.runs)):
-            signals = None
-            blocks: list[Any] = []
-            for i, (c, state) in enumerate(zip(model.components, states)):
-                hit = self.entries.get((r, i))
-                if hit is not None and hit[0] == keys[i]:
-                    block = hit[1]
-                    if block is not None and block.hysteresis and scaled_later[i]:
-                        block = replace(block, matrix=block.matrix.copy())
-                    state.clear()
-                    state.update(copy.deepcopy(hit[2]))
-                else:
-                    if signals is None:
-                        signals = model._signals(run, model._delayed(run))
-                    block = c.columns(signals, state, blocks)
-                    kept = (replace(block, matrix=block.matrix.copy())
-                            if block is not None and block.hysteresis and scaled_later[i] else block)
-                    self.entries[(r, i)] = (keys[i], kept, copy.deepcopy(state))
-                if block is not None:
-                    blocks.append(block)
-            out.append(blocks)
+        # as Model._walk: memory chained between runs marked ``chain`` through the ramp from one
+        # run's end to the next's start (Model.advance), else fresh after the rig's approach ramp
+        # when known; the ramps' blocks are kept as the runs' are (they depend on the same shape)
+        states = model.new_states()
+        previous = None
+        for r, run in enumerate(self.runs):
+            ramp = None
+            if run.chain and previous is not None:
+                ramp = (float(previous.input[-1]), float(run.input[0]))
+            else:
+                states = model.new_states()
+                if run.approach_from is not None:
+                    ramp = (float(run.approach_from), float(run.input[0]))
+            if ramp is not None:
+                walked = model.ramp(*ramp, {k: float(v[0]) for k, v in run.aux.items()})
+                if walked is not None:
+                    self._blocks(("ramp", r), walked, drive, keys, scaled_later, states)
+            out.append(self._blocks(("run", r), run, drive, keys, scaled_later, states))
+            previous = run
         return out
+
+    def _blocks(self, where: tuple[str, int], run: RunData, drive: tuple[float, ...],
+                keys: list[tuple[float, ...]], scaled_later: list[bool], states: list[dict[str, Any]]) -> list[Any]:
+        """The static blocks of one run or ramp (``where``), each component's from the cache while
+        its prefix key holds, its memory (``states``) carried on either way. The signals are kept
+        while the drive's shaping holds: components keep what depends on them alone with them
+        (:attr:`hilbench.models.components.Signals.memo`)."""
+        model = self.model
+        signals = None
+        blocks: list[Any] = []
+        for i, (c, state) in enumerate(zip(model.components, states)):
+            hit = self.entries.get((where, i))
+            if hit is not None and hit[0] == keys[i]:
+                block = hit[1]
+                if block is not None and block.hysteresis and scaled_later[i]:
+                    block = replace(block, matrix=block.matrix.copy())
+                state.clear()
+                state.update(copy.deepcopy(hit[2]))
+            else:
+                if signals is None:
+                    kept = self.signals.get(where)
+                    if kept is None or kept[0] != drive:
+                        kept = self.signals[where] = (drive, model._signals(run, model._delayed(run)))
+                    signals = kept[1]
+                block = c.columns(signals, state, blocks)
+                kept_block = (replace(block, matrix=block.matrix.copy())
+                              if block is not None and block.hysteresis and scaled_later[i] else block)
+                self.entries[(where, i)] = (keys[i], kept_block, copy.deepcopy(state))
+            if block is not None:
+                blocks.append(block)
+        return blocks
 
 
 def _copy_shape(source: Model, target: Model) -> set[int]:

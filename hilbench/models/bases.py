@@ -70,12 +70,23 @@ class OperatorBase(Component):
         # The operator with threshold 0 is the input itself: its weight is the linear term p0,
         # free in sign; the others are play operators with weights >= 0 (the inverse needs it).
         ops = self.operator_columns(s.v, state)
-        r = self.constants["thresholds"]
-        n = s.v.shape[0]
-        matrix = np.column_stack([np.ones(n), ops, *self.extra(s)])
-        names = ["offset"] + [f"w[r={ri:.4g}]" if ri > 0 else "p0*v" for ri in r] + self.extra_names()
-        op_lower = [(0.0 if self.nonneg else -np.inf) if ri > 0 else -np.inf for ri in r]
-        lower = [-np.inf] + op_lower + [-np.inf] * len(self.extra_names())
+        # the offset and the extra columns (MPI's v^2, v^3) depend on the input alone, not on eta:
+        # kept with the signals, so a shape search computes them once per run (Signals.memo)
+        key = ("operator-base", id(self), tuple(self.constants["thresholds"]))
+        fixed = s.memo.get(key)
+        if fixed is None:
+            r = self.constants["thresholds"]
+            names = ["offset"] + [f"w[r={ri:.4g}]" if ri > 0 else "p0*v" for ri in r] + self.extra_names()
+            op_lower = [(0.0 if self.nonneg else -np.inf) if ri > 0 else -np.inf for ri in r]
+            lower = [-np.inf] + op_lower + [-np.inf] * len(self.extra_names())
+            fixed = s.memo[key] = (self.extra(s), names, lower)
+        extra, names, lower = fixed
+        n, k = ops.shape
+        matrix = np.empty((n, 1 + k + len(extra)))
+        matrix[:, 0] = 1.0
+        matrix[:, 1 : 1 + k] = ops
+        for j, column in enumerate(extra):
+            matrix[:, 1 + k + j] = column
         return Columns.of(matrix, names, lower, hysteresis=True)
 
     def extra(self, s: Signals) -> list[np.ndarray]:

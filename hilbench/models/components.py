@@ -21,7 +21,7 @@ columns, signals); the bases are in :mod:`hilbench.models.bases`, the effects in
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
@@ -75,6 +75,11 @@ class Signals:
     #: the first row of each run joined here (training runs are joined for ``prepare``): no rate or
     #: turning point is measured across a junction, where the input jumps from one run to the next
     starts: tuple[int, ...] = (0,)
+    #: columns that depend on these signals and on nothing searched (a base's constant and
+    #: polynomial columns, creep's low-passes of the input at given time constants), kept by the
+    #: components that compute them: a shape search reuses one Signals per run across its
+    #: evaluations (:class:`hilbench.identify.separable._ColumnCache`), so they are computed once
+    memo: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def pieces(self) -> list[slice]:
         """The rows of each joined run."""

@@ -354,18 +354,15 @@ class Creep(Component):
             state["started"] = True
         taus = self.time_constants()
         v = np.ascontiguousarray(s.v)
-        cols = []
-        for k, tau in enumerate(taus):
-            out = np.empty_like(v)
-            MK.lowpass_block(v, 1.0 - math.exp(-1.0 / (s.fs * tau)), state["lp"][k], out)
-            cols.append(out - v)  # the drift part: zero in steady state
+        stacked = self._input_drifts(s, v, taus, state["lp"])
+        cols = list(stacked.T)
         names = [f"creep[tau={t:.3g}s]" for t in taus]
         if self._form() == "bank":  # creep in the direction of the input change (see the class doc)
-            return Columns.of(np.column_stack(cols), names, lower=0.0)
+            return Columns.of(stacked.copy(), names, lower=0.0)
         if self._form() == "log":  # the law's spectrum over the bank: one weight, the law's gamma
-            return Columns.of((np.column_stack(cols) @ self.log_spectrum())[:, None], ["creep[log]"], lower=0.0)
+            return Columns.of((stacked @ self.log_spectrum())[:, None], ["creep[log]"], lower=0.0)
         if self._form() == "log-output":
-            return self._log_output_columns(s, state, previous, np.column_stack(cols) @ self.log_spectrum())
+            return self._log_output_columns(s, state, previous, stacked @ self.log_spectrum())
         if self._form() == "output":
             hyst = [(b, [j for j, name in enumerate(b.names) if name != "offset"]) for b in previous if b.hysteresis]
             if hyst:
@@ -388,6 +385,31 @@ class Creep(Component):
                 copy_lower = [0.0 if b.lower[j] >= 0.0 else -np.inf for b, keep in hyst for j in keep]
                 return Columns.of(mat, names, lower=[-np.inf] * len(cols) + copy_lower * taus.size)
         return Columns.of(np.column_stack(cols), names)
+
+    def _input_drifts(self, s: Signals, v: np.ndarray, taus: np.ndarray, lp: np.ndarray) -> np.ndarray:
+        """The drift parts lp_tau(v) - v of the input, one column per time constant (n, len(taus)),
+        the low-passes' states ``lp`` (len(taus), 1) carried in and out. Each column depends on its
+        time constant and starting state alone, not on any other shape parameter, so it is kept
+        with the signals (:attr:`Signals.memo`): a shape search reuses it while the base's etas
+        move, and a fixed bank (form=bank, log, log-output) is filtered once per run. The most
+        recent columns are kept, a few per element."""
+        memo = s.memo.setdefault(("creep-input", id(self)), {})
+        stacked = np.empty((v.size, taus.size))
+        for k, tau in enumerate(taus):
+            alpha = 1.0 - math.exp(-1.0 / (s.fs * tau))
+            key = (alpha, float(lp[k, 0]))
+            hit = memo.pop(key, None)
+            if hit is None:
+                out = np.empty_like(v)
+                MK.lowpass_block(v, alpha, lp[k], out)
+                hit = (out - v, float(lp[k, 0]))  # the drift part: zero in steady state
+            else:
+                lp[k, 0] = hit[1]
+            memo[key] = hit  # the most recent last
+            stacked[:, k] = hit[0]
+        while len(memo) > 2 * taus.size + 8:
+            memo.pop(next(iter(memo)))
+        return stacked
 
     def _log_output_columns(self, s: Signals, state: dict[str, Any], previous: list[Columns],
                             input_law: np.ndarray) -> Columns:

@@ -213,15 +213,22 @@ class Model:
 
     def advance(self, states: list[dict[str, Any]], u_from: float, u_to: float, aux: dict[str, float]) -> None:
         """Carry the memory across the rig's unrecorded ramp from one run's end to the next's start."""
-        if abs(u_from - u_to) <= 1e-12 * float(self.norm.get("u_scale", 1.0)):
+        ramp = self.ramp(u_from, u_to, aux)
+        if ramp is None:
             return
-        n = 64
-        u = np.linspace(u_from, u_to, n)
-        ramp = RunData(u, None, {k: np.full(n, v) for k, v in aux.items()}, self.sample_rate_hz or 1.0)
         if self.structure is not None:
             self.structure_output(ramp, states[self.components.index(self.structure)])
             return
         self.static_columns(ramp, states)
+
+    def ramp(self, u_from: float, u_to: float, aux: dict[str, float]) -> RunData | None:
+        """The rig's unrecorded ramp from one command to another (64 samples), or None when the two
+        are the same command (:meth:`advance` walks it)."""
+        if abs(u_from - u_to) <= 1e-12 * float(self.norm.get("u_scale", 1.0)):
+            return None
+        n = 64
+        u = np.linspace(u_from, u_to, n)
+        return RunData(u, None, {k: np.full(n, v) for k, v in aux.items()}, self.sample_rate_hz or 1.0)
 
     def _walk(self, runs: list[RunData]):
         """Yield (run, states ready for it): memory chained between runs marked ``chain``, else
@@ -258,9 +265,7 @@ class Model:
         # Every column is filtered and delayed on its own, so the blocks are processed one by one
         # and only the wanted rows are stacked: stacking every row first (then selecting a thinned
         # training set) copied the whole matrix once more per evaluation of a fit.
-        dyn = self.effect("dynamics")
-        ba = dyn.coefficients(run.sample_rate_hz) if dyn is not None else None
-        zi = sps.lfilter_zi(*ba) if ba is not None else None  # steady state at each column's first value
+        ba, zi = self._dynamics_filter(run.sample_rate_hz)
         delay = self.effect("delay")
         d = delay.param("seconds") * run.sample_rate_hz if delay is not None else None
         n = len(run) if rows is None else rows.shape[0]
@@ -280,6 +285,20 @@ class Model:
                 matrix[:, first : first + p] = m
             first += p
         return matrix, names, lower, upper
+
+    def _dynamics_filter(self, fs: float) -> tuple[Any, np.ndarray | None]:
+        """The dynamics' discrete filter (b, a) at ``fs`` and its steady state per unit input, or
+        (None, None) without dynamics; kept while the dynamics' shape holds (a shape search asks
+        for it once per run at every evaluation, mostly with the dynamics unchanged)."""
+        dyn = self.effect("dynamics")
+        if dyn is None:
+            return None, None
+        key = (id(dyn), float(fs), tuple(p.value for p in dyn.params))
+        kept = getattr(self, "_filter_memo", None)
+        if kept is None or kept[0] != key:
+            ba = dyn.coefficients(fs)
+            kept = self._filter_memo = (key, ba, sps.lfilter_zi(*ba))  # steady state at each column's first value
+        return kept[1], kept[2]
 
     # -- simulation ----------------------------------------------------------------------------------
     def simulate(self, run: RunData) -> np.ndarray:

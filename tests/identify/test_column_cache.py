@@ -24,7 +24,8 @@ def _run() -> RunData:
 
 @pytest.mark.parametrize("spec", ["pi+rate-dependence(form=damping)", "pi+rate-dependence(form=frequency)",
                                   "pi+asymmetry+creep(form=output)+temperature", "pi+saturation(form=output)+temperature",
-                                  "pi+creep(form=output)+dynamics"])
+                                  "pi+creep(form=output)+dynamics", "pmpi(n=4)+creep(form=log-output)",
+                                  "pmpi(n=4)+creep(form=bank)+dynamics", "pmpi(n=4)+creep"])
 def test_cached_matrix_equals_a_fresh_one_as_each_parameter_moves(spec: str) -> None:
     run = _run()
     mask = np.ones(len(run.input), dtype=bool)
@@ -43,3 +44,36 @@ def test_cached_matrix_equals_a_fresh_one_as_each_parameter_moves(spec: str) -> 
         got = cached.residual(x)
         fresh = _Problem(model, [run], [mask]).residual(x)
         assert np.array_equal(got, fresh), spec
+
+
+@pytest.mark.parametrize("spec", ["pmpi(n=4)+creep(form=output)", "pmpi(n=4)+creep(form=log-output)+dynamics",
+                                  "pi+saturation(form=hammerstein)+creep"])
+def test_chained_runs_cached_equal_the_models_own_walk(spec: str) -> None:
+    """Runs chained through the rig's ramps: the cache keeps the ramps' blocks and the signals (with
+    what components keep on them, Signals.memo) and gives the matrix the model's own design gives
+    (Model._walk, fresh signals at every call), as each parameter moves and back."""
+    first = _run()
+    second = RunData(first.input[::-1] * 0.7 + 1.0, first.output[::-1], {"temperature": first.aux["temperature"]},
+                     FS, chain=True)
+    third = RunData(first.input * 0.5, first.output, {"temperature": first.aux["temperature"]}, FS,
+                    approach_from=0.0)
+    runs = [first, second, third]
+    masks = [np.ones(len(r.input), dtype=bool) for r in runs]
+    model = Model(spec)
+    model.prepare(runs)
+    cached = _Problem(model, runs, masks)
+    lo, hi = cached.bounds_x()
+    x0 = cached.to_x(np.array([p.value for p in cached.params]))
+    steps = [x0]
+    for k in range(x0.size):
+        x = x0.copy()
+        x[k] = x[k] + 0.05 * (hi[k] - lo[k]) if x[k] + 0.05 * (hi[k] - lo[k]) <= hi[k] else x[k] - 0.05 * (hi[k] - lo[k])
+        steps += [x, x0]
+    for x in steps:
+        cached.solve(cached.to_theta(x))
+        got, _, _, _ = cached.design()
+        walked = []
+        for run, states in model._walk(runs):
+            blocks = model.static_columns(run, states)
+            walked.append(model.apply_dynamics(run, blocks)[0])
+        assert np.array_equal(got, np.vstack(walked)), spec
