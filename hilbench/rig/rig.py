@@ -63,7 +63,7 @@ class Rig:
         self.actuator = config.actuator
         self.sample_rate_hz = config.sample_rate_hz
         self.devices_by_name: dict[str, Device] = dict(devices) if devices is not None else open_devices(config)
-        self._last = np.array([self.actuator.rest])
+        self._last = np.array([float(self.actuator.rest)])
         self._one = np.zeros(1)  # apply_value's buffers: one command in ...
         self._one_out = np.zeros(1)  # ... one applied value out
         self.clamped_samples = 0

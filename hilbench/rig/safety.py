@@ -13,7 +13,11 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True)
+# Compiled eagerly, at import, for the one signature every caller uses (C-contiguous float64 arrays,
+# float limits): the fixed-rate loop's first sample calls it, and a lazy compile (or even a load from
+# numba's cache) there took 0.26 s on an idle machine and over 2 s on a loaded one, which tripped the
+# watchdog before sample 1.
+@njit("int64(float64[::1], float64, float64, float64, float64[::1], float64[::1])", cache=True)
 def command_path(
     command: np.ndarray, lo: float, hi: float, max_step: float, state: np.ndarray, out: np.ndarray
 ) -> int:

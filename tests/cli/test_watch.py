@@ -106,7 +106,8 @@ def test_the_page_shows_the_samples_so_far_and_updates_while_the_sweep_runs(tmp_
             sweep.wait(120)
             if watch.poll() is None:
                 watch.kill()
-    assert len(counts) == 2 and counts[1] > counts[0] > 0, counts  # the samples so far, growing
+    failed = "" if sweep.stderr is None else sweep.stderr.read()[-2000:]
+    assert len(counts) == 2 and counts[1] > counts[0] > 0, (counts, failed)  # the samples so far, growing
     assert watch.returncode == 0
     assert "watching ended:" in rest and "ended aborted" in rest, rest
     image = pytest.importorskip("PIL.Image")

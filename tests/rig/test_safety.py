@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import numpy as np
 
 from hilbench.rig.safety import command_path, ramp
@@ -29,3 +32,11 @@ def test_a_ramp_passes_the_slew_limiter_unchanged_and_ends_exactly_on_its_target
 
 def test_a_ramp_to_where_it_stands_is_empty():
     assert ramp(1.5, 1.5, 0.1).shape == (0,)
+
+
+def test_the_actuator_path_is_compiled_at_import_not_at_the_loops_first_sample() -> None:
+    # a lazy compile at the fixed-rate loop's first sample took 0.26-2 s and tripped its watchdog
+    code = ("from hilbench.rig.safety import command_path; "
+            "print(len(command_path.nopython_signatures), command_path._can_compile)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.stdout.split() == ["1", "False"], done.stderr
