@@ -285,7 +285,7 @@ class Creep(Component):
         an inverse whose instantaneous gain is a twelfth of its static one (decision 0111)."""
         self.constants["min_tau_s"] = CREEP_BESIDE_DYNAMICS_MIN_TAU_S
 
-    def _fastest(self, s: Signals, lo: float, hi: float) -> float:
+    def _fastest(self, lo: float, hi: float) -> float:
         """The shortest time constant allowed: ``lo``, raised to min_tau_s (beside dynamics), at most
         a third of ``hi``, the slowest."""
         floor = float(self.constants.get("min_tau_s", 0.0))
@@ -307,7 +307,7 @@ class Creep(Component):
                                                      most=2 * CREEP_BANK_MOST)
                 else:
                     taus = creep_bank_time_constants(duration, s.fs, per_decade)
-                fastest = self._fastest(s, float(taus[0]), float(taus[-1]))
+                fastest = self._fastest(float(taus[0]), float(taus[-1]))
                 if fastest > taus[0]:  # the same spacing per decade, from the floor up
                     decades = math.log10(taus[-1] / fastest)
                     n = int(min(taus.size, max(2, math.ceil(per_decade * decades) + 1)))
@@ -325,9 +325,10 @@ class Creep(Component):
         n = int(self.options.get("n", 2))
         duration = s.u.shape[0] / s.fs
         hi = max(duration, 20.0 / s.fs)
-        lo = self._fastest(s, 10.0 / s.fs, hi)
+        few_samples = 10.0 / s.fs
+        lo = self._fastest(few_samples, hi)
         # off the floor when it is raised (a start on a bound leaves the search one side to move to)
-        first = max(lo * (2.0 if lo > 10.0 / s.fs else 1.0), duration / 100)
+        first = max(lo * (2.0 if lo > few_samples else 1.0), duration / 100)
         starts = np.geomspace(first, max(hi / 3, first * 2), n)
         self.params = [ShapeParam(f"tau_{k}", float(t), lo, hi, "s", log=True, doc="creep time constant")
                        for k, t in enumerate(starts)]
