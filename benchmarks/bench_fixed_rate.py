@@ -170,11 +170,15 @@ class Emulated:
             self.process.kill()
 
 
-def start_emulate(template: Path, seconds: float) -> Emulated:
+def start_emulate(template: Path, seconds: float, write_config: Path | None = None) -> Emulated:
+    """``hilbench emulate`` for ``seconds``; with ``write_config``, the config pointed at it written
+    there too (as a user does before a dry run from another shell)."""
     from hilbench.rig.config import load_rig
 
+    extra = ["--write-config", str(write_config)] if write_config is not None else []
     proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", "emulate", str(template), "--json",
-                             "--seconds", f"{seconds:g}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--seconds", f"{seconds:g}", *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     text = ""
     assert proc.stdout is not None
     while True:

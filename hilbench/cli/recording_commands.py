@@ -87,8 +87,10 @@ def sweep(
             typer.echo(f"plan OK: {totals['runs']} runs, {totals['samples']} samples, {totals['duration_s']:.3f} s")
             if "round_trips" in document:
                 rt = document["round_trips"]
+                low, high = rt["max_rate_interval_hz"]
                 typer.echo(f"devices OK at {rig_config.sample_rate_hz:g} Hz: round trip {rt['round_trip_p50_s'] * 1e3:.3g} ms "
-                           f"(p50), {rt['round_trip_p99_s'] * 1e3:.3g} ms (p99); at most {rt['max_rate_hz']:.4g} Hz")
+                           f"(p50), {rt['round_trip_p99_s'] * 1e3:.3g} ms (p99); at most {rt['max_rate_hz']:.4g} Hz "
+                           f"({low:.4g}-{high:.4g} Hz, 95 % confidence; {rt['advised_rate_hz']:g} Hz holds at either end)")
         return
     out = output or default_output(rig_config.name)
     rig = Rig(rig_config)

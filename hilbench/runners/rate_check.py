@@ -11,6 +11,13 @@ The rate they can hold is ``HEADROOM / p99`` of the round trip: the loop's own w
 a compensator, appending to the recording) comes on top of the devices' time, and a p99 at the period
 would already overrun about 1 % of the samples.
 
+A p99 from a thousand round trips is itself uncertain: two checks in a row on the same emulated
+Modbus + Keyence rig said 320 and 305 Hz, so the rate the first one advised was refused by the
+second. The check therefore uses the distribution-free interval of the p99 (order statistics, the
+binomial law of how many round trips fall below it; ``P99_CONFIDENCE``): it refuses a rate above
+what even the interval's short end allows, and advises one that its long end allows. A rate
+advised is then refused again only when the devices really got slower.
+
 When a DAQ's sample clock paces the loop (:func:`hilbench.runners.pacing.device_clock`), each timed
 round trip starts at the clock's tick, as in the run: the wait for the tick is not timed (it is the
 period, not the devices' work), the write and the reads after it are, and the rule is the same.
@@ -28,8 +35,25 @@ from hilbench.errors import UserError
 
 #: share of a period the devices' round trip (p99) may take
 HEADROOM = 0.8
-#: round trips timed
-DEFAULT_SAMPLES = 300
+#: round trips timed: enough for the p99's interval to end below the slowest one
+DEFAULT_SAMPLES = 1000
+#: two-sided confidence of the interval on the p99 that the refusal and the advice use
+P99_CONFIDENCE = 0.95
+
+
+def quantile_interval(values: np.ndarray, q: float, confidence: float = P99_CONFIDENCE) -> tuple[float, float]:
+    """Distribution-free ``confidence`` interval of the ``q`` quantile of the law ``values`` were drawn
+    from: the order statistics X(r) <= quantile <= X(s) whose ranks the binomial law of the count of
+    values below the quantile, Bin(n, q), gives. An end beyond the sample is its extreme value."""
+    from scipy.stats import binom
+
+    x = np.sort(np.asarray(values, dtype=float))
+    n = x.size
+    tail = 0.5 * (1.0 - confidence)
+    # P(X(r) <= xi_q) = P(B >= r) >= 1 - tail for r = ppf(tail); P(X(s) >= xi_q) = P(B <= s - 1)
+    r = int(binom.ppf(tail, n, q))
+    s = int(binom.ppf(1.0 - tail, n, q)) + 1
+    return float(x[min(max(r, 1), n) - 1]), float(x[min(max(s, 1), n) - 1])
 
 
 @dataclass
@@ -50,13 +74,25 @@ class RoundTrips:
         """The highest sample rate the devices can hold (see the module docstring)."""
         return HEADROOM / self.p(0.99)
 
+    def rate_interval_hz(self) -> tuple[float, float]:
+        """The rate they can hold at the long and at the short end of the p99's interval, Hz."""
+        lo, hi = quantile_interval(self.total_s, 0.99)
+        return HEADROOM / hi, HEADROOM / lo
+
+    @property
+    def advised_rate_hz(self) -> float:
+        """A round rate they hold even at the long end of the p99's interval: what the check advises."""
+        return _round_down(self.rate_interval_hz()[0])
+
     @property
     def slowest(self) -> str:
         return max(self.per_device_s, key=lambda d: float(np.median(self.per_device_s[d])))
 
     def describe(self) -> dict[str, Any]:
+        low, high = self.rate_interval_hz()
         return {"samples": self.samples, "round_trip_p50_s": self.p(0.5), "round_trip_p99_s": self.p(0.99),
-                "max_rate_hz": self.max_rate_hz,
+                "max_rate_hz": self.max_rate_hz, "max_rate_interval_hz": [low, high],
+                "advised_rate_hz": self.advised_rate_hz,
                 "devices": {d: {"p50_s": self.p(0.5, v), "p99_s": self.p(0.99, v)} for d, v in self.per_device_s.items()},
                 "paced_by": f"device {self.clock}: each round trip from its sample clock's tick" if self.clock
                 else "none: back to back"}
@@ -66,8 +102,10 @@ class RoundTrips:
             return f"{s * 1e3:.3g} ms"
 
         parts = ", ".join(f"{d} {ms(self.p(0.5, v))}" for d, v in self.per_device_s.items())
+        low, high = self.rate_interval_hz()
         return (f"the devices' round trip takes {ms(self.p(0.5))} (p50), {ms(self.p(0.99))} (p99) "
-                f"[{parts}]: they can hold at most {self.max_rate_hz:.4g} Hz")
+                f"[{parts}]: they can hold at most {self.max_rate_hz:.4g} Hz ({low:.4g}-{high:.4g} Hz, "
+                f"{P99_CONFIDENCE:.0%} confidence)")
 
 
 def time_round_trips(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:
@@ -99,13 +137,14 @@ def time_round_trips(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:
 
 
 def require_rate(rig: Any, samples: int = DEFAULT_SAMPLES) -> RoundTrips:
-    """The measured round trips; refused (exit 2) when the rig's rate is above what they can hold."""
+    """The measured round trips; refused (exit 2) when the rig's rate is above what they can hold at
+    the short end of the p99's interval (see the module docstring)."""
     trips = time_round_trips(rig, samples)
     fs = rig.sample_rate_hz
-    if fs > trips.max_rate_hz:
+    if fs > trips.rate_interval_hz()[1]:
         where = rig.config.path or rig.config.name
         raise UserError(f"sample_rate_hz = {fs:g} cannot be held: {trips.line()} (slowest: {trips.slowest})",
-                        where=where, hint=f"set sample_rate_hz <= {_round_down(trips.max_rate_hz):g} in the rig "
+                        where=where, hint=f"set sample_rate_hz <= {trips.advised_rate_hz:g} in the rig "
                         "config, or --allow-late to run anyway (its overruns are recorded)")
     return trips
 
