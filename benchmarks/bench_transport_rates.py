@@ -5,10 +5,11 @@ dry-runs a config) and the rate check of ``hilbench sweep --check`` times ``--ro
 trips (the actuator written its present value, every sensor read): p50 and p99 per device and for
 the whole sample, and the highest rate the loop can hold there (0.8 / p99, as ``--check`` says, with
 its interval and the rate it advises). Then, for the per-sample rigs whose emulators run in a process
-of their own, what a user does next: the config set to the advised rate and ``hilbench sweep`` run in a fresh process (its own rate check, compile and
-start included) on a ``--sweep-seconds`` sine; the run's lateness p50/p99/max and overruns as the
-recording keeps them (issue 59: fewer than 1 % overruns at the rate the check allows), and how late its
-first three samples were (each less than one period after warm-up).
+of their own, what a user does next: the config set to the advised rate and ``hilbench sweep`` run
+in a fresh process (its own rate check, compile and start included) on a ``--sweep-seconds`` sine;
+the run's lateness p50/p99/max and overruns as the recording keeps them (issue 59: fewer than 1 %
+overruns at the rate the check allows), and how late its first three samples were (each less than
+one period after warm-up).
 
 * Modbus AIO + Keyence LK-G: Modbus TCP to the amplifier's AO/AI module, the laser's RS-232C
   protocol over a TCP serial server (``configs/templates/gmm-modbus-keyence.toml``);
@@ -49,6 +50,12 @@ RIGS = {
 }
 
 
+def _in_ms(figures: dict[str, Any]) -> dict[str, Any]:
+    """Figures in seconds (keys ending ``_s``) as milliseconds (``_ms``); the others as they are."""
+    return {(k[:-2] + "_ms" if k.endswith("_s") else k): (round(v * 1e3, 4) if k.endswith("_s") else v)
+            for k, v in figures.items()}
+
+
 def time_rig(config: Any, round_trips: int) -> dict[str, Any]:
     from hilbench.rig.rig import Rig
     from hilbench.runners.rate_check import time_round_trips
@@ -60,13 +67,12 @@ def time_rig(config: Any, round_trips: int) -> dict[str, Any]:
         trips = time_round_trips(rig, round_trips)
         mode = select_mode(rig)
     described = trips.describe()
-    return {"mode": mode, **{(k[:-2] + "_ms" if k.endswith("_s") else k): (round(v * 1e3, 4) if k.endswith("_s") else v)
-               for k, v in described.items() if k != "devices"},
-            "devices_ms": {d: {k[:-2] + "_ms": round(v * 1e3, 4) for k, v in f.items()}
-                           for d, f in described["devices"].items()},
-            "max_rate_hz": round(trips.max_rate_hz, 1),
-            "max_rate_interval_hz": [round(r, 1) for r in trips.rate_interval_hz()],
-            "set_at_most_hz": trips.advised_rate_hz}
+    devices = described.pop("devices")
+    return {"mode": mode, **_in_ms(described),
+            "devices_ms": {d: _in_ms(f) for d, f in devices.items()},
+            "max_rate_hz": round(described["max_rate_hz"], 1),
+            "max_rate_interval_hz": [round(r, 1) for r in described["max_rate_interval_hz"]],
+            "set_at_most_hz": described["advised_rate_hz"]}
 
 
 def sweep_at(written: Path, rate_hz: float, seconds: float, folder: Path) -> dict[str, Any]:
@@ -96,9 +102,7 @@ def sweep_at(written: Path, rate_hz: float, seconds: float, folder: Path) -> dic
     first = run.channel("lateness")[:3]  # a stall in the first sample's work shows in the second's
     return {"rate_hz": rate_hz, "exit": 0, "samples": run.n_samples, "status": run.status,
             "first_samples_late_ms": [round(float(x) * 1e3, 4) for x in first],
-            **{(k[:-2] + "_ms" if k.endswith("_s") else k): (round(v * 1e3, 4) if k.endswith("_s") else v)
-               for k, v in figures.items()
-               if k.startswith(("lateness_", "overrun")) or k == "late"},
+            **_in_ms({k: v for k, v in figures.items() if k.startswith(("lateness_", "overrun")) or k == "late"}),
             "line": loop_line(figures)}
 
 
@@ -118,7 +122,7 @@ def run(round_trips: int, sweep_seconds: float = 10.0) -> dict[str, Any]:
                     figures = time_rig(emu.config, round_trips)
                     if sweep_seconds > 0 and figures["mode"] == "fixed-rate":  # not a wave generator's
                         C.note(f"[transports] {name}: hilbench sweep at {figures['set_at_most_hz']:g} Hz ...")
-                        figures["sweep_at_held_rate"] = sweep_at(folder / "emulated.toml",
+                        figures["sweep_at_advised_rate"] = sweep_at(folder / "emulated.toml",
                                                                  float(figures["set_at_most_hz"]), sweep_seconds, folder)
                 finally:
                     emu.close()
@@ -133,7 +137,7 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--round-trips", type=int, default=1000, help="round trips timed per rig (default 1000, as --check)")
     ap.add_argument("--sweep-seconds", type=float, default=10.0,
-                    help="the sweep at the rate held, s (default 10; 0: no sweep)")
+                    help="the sweep at the advised rate, s (default 10; 0: no sweep)")
     a = ap.parse_args(argv)
     print(json.dumps(run(max(10, a.round_trips), max(0.0, a.sweep_seconds)), indent=2))
 

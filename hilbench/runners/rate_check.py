@@ -11,7 +11,7 @@ The rate they can hold is ``HEADROOM / p99`` of the round trip: the loop's own w
 a compensator, appending to the recording) comes on top of the devices' time, and a p99 at the period
 would already overrun about 1 % of the samples.
 
-A p99 from a thousand round trips is itself uncertain: two checks in a row on the same emulated
+A p99 from a few hundred round trips is itself uncertain: two checks in a row on the same emulated
 Modbus + Keyence rig said 320 and 305 Hz, so the rate the first one advised was refused by the
 second. The check therefore uses the distribution-free interval of the p99 (order statistics, the
 binomial law of how many round trips fall below it; ``P99_CONFIDENCE``): it refuses a rate above
