@@ -7,8 +7,8 @@ clamp to ``[min, max]``, slew limit ``max_rate / fs``), the plant
 (:func:`hilbench.sim.kernels.plant_step_flat`) and the commit of the applied command and the
 measurement (:func:`hilbench.online.inverse_kernels.comp_update`: model memory, PID, OIIR identifier). It
 is compiled with ``_nrt=False`` (it allocates nothing; see :mod:`hilbench.models.stepping`), so the
-inlined steps pay no reference counting; the compensator's step and commit (with the identifier)
-are inlined too, so no per-sample call copies their ~30 array arguments. Both loops use numpy's error
+inlined steps (the plant's, the compensator's commit with the identifier) and the called
+compensator step (itself ``_nrt=False``) pay no reference counting. Both loops use numpy's error
 model: under Python's, every division of the inlined code tests its divisor for zero to raise
 ZeroDivisionError (12 % of the loop's time); here a zero divisor gives inf or NaN, which the
 safety path holds (NaN) or clamps (inf) like any other bad command. The loop runs in lock-step, so its ``lateness`` channel is 0.
@@ -63,9 +63,11 @@ from hilbench.sim import kernels as K
 __all__ = ["track", "TrackResult", "closed_loop_block", "loop_step", "reference_signal", "SimulatedLoop"]
 
 
-# The compensator's step and commit inlined into the fused loop: called, each would copy its array
-# arguments (the identifier's 17 arrays: ~1 kB) per sample.
-_comp_step = njit(cache=True, inline="always", _nrt=False)(comp_step.py_func)
+# The compensator's step is called, not inlined: inlined, numba typed and SSA-rebuilt its body (every
+# inverse kind) again inside this loop, and a first `track` compiled 138 s (102 s now, same machine);
+# the loop's time per sample did not change (583/569 ns best chunk, 610/623 median, timed alternately
+# on bench_closed_loop's chain). Its commit stays inlined: it hands on the identifier's 17 arrays,
+# and with it called too the loop lost 66 ns per sample (637/571 ns).
 _comp_update = njit(cache=True, inline="always", _nrt=False)(comp_update.py_func)
 
 
@@ -90,7 +92,7 @@ def loop_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
     ``lims`` = (lo, hi, max_step); ``last`` (1,) the last applied command (the rig's safety state);
     ``B`` the plant's per-sample noise/temperature/load, column ``pos``; ``rec`` receives
     (command, applied)."""
-    u = _comp_step(CI, CP, CX, I, P, X, r, aux)
+    u = comp_step(CI, CP, CX, I, P, X, r, aux)
     c = _safety(u, lims[0], lims[1], lims[2], last)
     y = K.plant_step_flat(F, L, B, pos, c)
     _comp_update(CI, CP, CX, I, P, X, oa, r, c, y, aux)
@@ -117,7 +119,7 @@ def closed_loop_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndar
     for k in range(ref.shape[0]):
         r = ref[k]
         CX[S_TARGET] = targets[k]
-        u = _comp_step(CI, CP, CX, I, P, X, r, aux[k])
+        u = comp_step(CI, CP, CX, I, P, X, r, aux[k])
         c = _safety(u, lo, hi, ms, last)
         if c != u:
             changed += 1
