@@ -91,7 +91,7 @@ from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.online import feedback_design as FD
 from hilbench.online import inverse_kernels as K
-from hilbench.online.operating_range import operating_range
+from hilbench.online.operating_range import FALL_TOLERANCE, narrowed, operating_range
 from hilbench.online.feedback_design import InstabilityError
 from hilbench.online.pid import PID
 
@@ -234,10 +234,13 @@ class Compensator:
             asym = model.effect("asymmetry") is not None
             # the analytic inverses hold for a map rising over the whole fitted range; a falling one, or
             # one monotone only on part of it, is solved per sample on its operating range
-            if structure is None or (base == "fpmpi" and asym) or self.range.direction < 0 or not self.range.rising:
-                kind = "general"
-            elif base == "fpmpi":
+            rising = self.range.direction > 0
+            if base == "fpmpi" and structure is not None and not asym and rising and self.range.invertible:
+                # its analytic inverse (operators inverted, the polynomial solved by Newton) holds on a
+                # monotone part of the fitted range too: the solve is kept inside it
                 kind = "fpmpi"
+            elif structure is None or (base == "fpmpi" and asym) or not rising or not self.range.rising:
+                kind = "general"
             elif base in ("pi", "pi1") and not asym:
                 kind = "pi"
             elif base == "pmpi":
@@ -246,6 +249,8 @@ class Compensator:
                 kind = "mpi"
         else:
             kind = method
+        if kind == "fpmpi" and self.range.sub_range:
+            kind = self._fpmpi_on_rising_part(I, P, aux_ref, us) if method == "auto" else kind
         if kind not in K.KINDS:
             raise UserError(f"compensator method {kind!r}: expected auto or one of {', '.join(K.KINDS)}")
         if kind != "general" and structure is None:
@@ -269,7 +274,8 @@ class Compensator:
                                    hint="fit the model on the range you will track in, where the actuator rises")
         # the polynomial kinds too: 004 eq. 16/20 and the I-M clamp hold where the model is known (a
         # cubic fitted on 0..4 V turns over by 13 V, which made eq. 20 fail over the rig's range)
-        on_range = kind == "general" or (kind in ("mpi", "im") and self.range.rising and self.range.direction > 0)
+        on_range = (kind == "general" or (kind in ("mpi", "im") and self.range.rising and self.range.direction > 0)
+                    or (kind == "fpmpi" and self.range.sub_range and self.range.direction > 0))
         self.bracket = self.range.command if on_range else (lo, hi)
         self._range_notes(kind)
         ke = 0.0
@@ -413,6 +419,33 @@ class Compensator:
             self._fast_fpmpi()
         self.reset()
 
+    def _fpmpi_on_rising_part(self, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, us: float) -> str:
+        """``fpmpi`` on a monotone part of the fitted range: its Newton solve needs the fractional
+        polynomial rising over the whole bracket, but the part was found on a grid whose loop may fall
+        within :data:`FALL_TOLERANCE` at an end (the polynomial's turn). The bracket is narrowed to
+        the polynomial's widest rising stretch; kept when that loses at most twice the tolerance of
+        the reach (the sliver the grid admitted), else ``general`` (a turn inside the part)."""
+        lo, hi = self.range.command
+        v = np.linspace(lo / us, hi / us, 4001)
+        x = np.array([K.shaped_input(I, P, float(t)) for t in v])
+        rising = np.diff(x) >= -1e-12 * max(float(np.ptp(x)), 1e-300)
+        best, start, run = (0, 0), 0, 0
+        for i, ok in enumerate(rising):  # the longest run of rising steps
+            start, run = (start, run + 1) if ok else (i + 1, 0)
+            if run > best[1] - best[0]:
+                best = (start, start + run)
+        if best[1] == best[0]:
+            return "general"
+        part = narrowed(self.range, I, P, aux_ref, (float(v[best[0]] * us), float(v[best[1]] * us)), self.fs)
+        reach = self.range.output[1] - self.range.output[0]
+        if part is None or part.output[1] - part.output[0] < (1.0 - 2.0 * FALL_TOLERANCE) * reach:
+            return "general"
+        if part.command != self.range.command:
+            part.notes.append(f"the fpmpi inverse's fractional polynomial turns at the edge of [{lo:.4g}, {hi:.4g}]: "
+                              f"the operating range narrowed to [{part.command[0]:.4g}, {part.command[1]:.4g}]")
+        self.range = part
+        return "fpmpi"
+
     def _fast_fpmpi(self) -> None:
         """The fpmpi fast path (see :func:`K._fpmpi_newton`): the exponents as multiples of 1/q (q <= 24,
         powers <= 96), and the direct commit when the compiled static model is offset + fractional
@@ -425,7 +458,7 @@ class Compensator:
         q = next((q for q in range(1, 25)
                   if np.all(np.abs(exps * q - np.round(exps * q)) <= 1e-9 * q) and np.all(exps >= 0)
                   and np.max(np.round(exps * q), initial=0) <= 96), 0)
-        lo, hi = self.limits
+        lo, hi = self.bracket  # the rig's limits, or the monotone part of the fitted range
         us = float(self.CP[K.C_US])
         rng = np.random.default_rng(0)
         walk = np.clip(np.cumsum(rng.normal(0.0, 0.02 * (hi - lo), 400)) + 0.5 * (lo + hi), lo, hi)
@@ -550,8 +583,8 @@ class Compensator:
             self.notes.append(r.sub_range_note(u))
         if r.direction < 0 and kind == "general":
             self.notes.append("the static map falls with the command over the operating range: solved on its sign")
-        if kind == "general":
-            self.notes.append(f"the general inverse solves within [{self.bracket[0]:.4g}, {self.bracket[1]:.4g}] {u}"
+        if kind == "general" or r.sub_range:
+            self.notes.append(f"the {kind} inverse solves within [{self.bracket[0]:.4g}, {self.bracket[1]:.4g}] {u}"
                               .replace("  ", " "))
         elif not r.rising:
             self.notes.append(f"the static map does not rise over the fitted range (largest fall {r.fall_um:.4g} um on "
@@ -561,7 +594,7 @@ class Compensator:
                           self.model.effect("delay") is not None else "no dynamics or delay in the model")
 
     def _slope0(self) -> float:
-        lo, hi = self.limits
+        lo, hi = self.bracket
         us = self.CP[K.C_US]
         if self.kind == "general":
             # the ascending branch's mean slope over the bracket, in the solver's sense (positive)

@@ -41,7 +41,7 @@ range is the range of that loop's outputs (um).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -213,6 +213,19 @@ def _monotone_sub_range(I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, a: fl
                 if best is None or reach > best[0]:
                     best = (reach, (float(grid[i]), float(grid[j])), found)
     return None if best is None else (best[1], best[2])
+
+
+def narrowed(found: OperatingRange, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, command: tuple[float, float],
+             sample_rate_hz: float | None = None) -> OperatingRange | None:
+    """``found`` with its command range narrowed to ``command`` (inside it) and the reach traced again
+    there; None when the loop over ``command`` is not monotone in ``found``'s direction."""
+    aux_ref = np.asarray(aux_ref, float).ravel() if np.size(aux_ref) else np.zeros(1)
+    ok, worst = _loop_monotone(I, P, aux_ref, command[0], command[1], branch_samples(I, sample_rate_hz),
+                               found.direction)
+    if not ok:
+        return None
+    return replace(found, command=(float(command[0]), float(command[1])), output=worst["output"],
+                   slope=worst["slope"], notes=list(found.notes))
 
 
 def operating_range(model: Any, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray,
