@@ -66,3 +66,8 @@ class PlanLimitError(UserError):
 
 class DataError(UserError):
     """A data file (CSV, MAT, HDF5) cannot be read as asked."""
+
+
+class RecordingWriterError(RuntimeError):
+    """The recording's writer process failed (disk full, file removed) or stopped answering. Not the
+    user's input, but not a bug either: the CLI reports it as one line with exit status 1."""

@@ -26,7 +26,7 @@ import typer
 from hilbench import __version__
 from hilbench import progress as _progress
 from drivers.base import DeviceError
-from hilbench.errors import UserError, error_line
+from hilbench.errors import RecordingWriterError, UserError, error_line
 from hilbench.runners.faults import RunFault, summary
 
 app = typer.Typer(
@@ -81,6 +81,11 @@ def user_errors(func: F) -> F:
             line = summary(exc)
             fail(f"device {device!r}: {line}" if device and f"'{device}'" not in line else line,
                  f"recorded: {recorded}" if recorded else None, code=1)
+        except RecordingWriterError as exc:  # the runner made the actuator safe on its way out
+            if _state["debug"]:
+                traceback.print_exc()
+            fail(f"recording: {exc}", "the file keeps the samples up to the writer's last flush; check the disk's "
+                 "free space and speed", code=1)
         except OSError as exc:  # a path the system refuses: missing folder, permissions, full disk
             if exc.filename is None:
                 raise

@@ -55,6 +55,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from hilbench.errors import RecordingWriterError  # noqa: E402
 from hilbench.recording.hdf5 import ChannelSpec, RunWriter  # noqa: E402
 from hilbench.recording.lateness import LoopStats  # noqa: E402
 from hilbench.recording.recover import clear_stale_write_flags  # noqa: E402
@@ -70,8 +71,6 @@ ORDERED_STORES = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686
 _HANDED, _WRITTEN, _FLUSHED, _COUNTS = 0, 1, 2, 3
 
 
-class RecordingWriterError(RuntimeError):
-    """The writer process failed (disk full, file removed) or stopped answering."""
 
 
 def _one_line(exc: BaseException) -> str:

@@ -120,3 +120,21 @@ def test_a_writer_process_that_dies_fails_the_run_with_its_reason_and_keeps_what
     (kept,) = Recording(path).runs
     assert kept.status == "failed" and "writer process" in kept.attrs["reason"]
     assert kept.n_samples >= 10  # what was written before it died
+
+
+def test_a_writer_that_stops_answering_reaches_the_user_as_one_line(capsys):
+    """CI saw `sweep` end in a traceback when the writer process freed no slot in 30 s: the error
+    is the recording's, not a bug, and is told in one line with exit status 1."""
+    import typer
+
+    from hilbench.cli.app import user_errors
+
+    @user_errors
+    def command() -> None:
+        raise RecordingWriterError("the recording's writer process freed no slot in 30 s (the disk is that far behind)")
+
+    with pytest.raises(typer.Exit) as info:
+        command()
+    assert info.value.exit_code == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "freed no slot" in err and "Traceback" not in err
