@@ -71,9 +71,10 @@ def user_errors(func: F) -> F:
             if _state["debug"]:
                 traceback.print_exc()
             fail(exc.line(), exc.hint, code=getattr(exc, "exit_code", 2))
-        except (DeviceError, RunFault) as exc:
-            # a device or an interlock stopped a run: the runner made the actuator safe and closed the
-            # recording; one line naming the device, where the samples are, exit status 1
+        except (DeviceError, RunFault, RecordingWriterError) as exc:
+            # a device, an interlock or the recording's writer stopped a run: the runner made the actuator
+            # safe and closed the recording as far as it could; one line naming the device (or the
+            # writer), where the samples are, exit status 1
             if _state["debug"]:
                 traceback.print_exc()
             recorded = getattr(exc, "hilbench_recorded", None)
@@ -81,11 +82,6 @@ def user_errors(func: F) -> F:
             line = summary(exc)
             fail(f"device {device!r}: {line}" if device and f"'{device}'" not in line else line,
                  f"recorded: {recorded}" if recorded else None, code=1)
-        except RecordingWriterError as exc:  # the runner made the actuator safe on its way out
-            if _state["debug"]:
-                traceback.print_exc()
-            fail(f"recording: {exc}", "the file keeps the samples up to the writer's last flush; check the disk's "
-                 "free space and speed", code=1)
         except OSError as exc:  # a path the system refuses: missing folder, permissions, full disk
             if exc.filename is None:
                 raise

@@ -215,12 +215,16 @@ def _monotone_sub_range(I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, a: fl
     return None if best is None else (best[1], best[2])
 
 
+def _aux_values(aux_ref: Any) -> np.ndarray:
+    """The aux channels' reference values as a flat float array (one 0 for a model without any)."""
+    return np.asarray(aux_ref, float).ravel() if np.size(aux_ref) else np.zeros(1)
+
+
 def narrowed(found: OperatingRange, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, command: tuple[float, float],
              sample_rate_hz: float | None = None) -> OperatingRange | None:
     """``found`` with its command range narrowed to ``command`` (inside it) and the reach traced again
     there; None when the loop over ``command`` is not monotone in ``found``'s direction."""
-    aux_ref = np.asarray(aux_ref, float).ravel() if np.size(aux_ref) else np.zeros(1)
-    ok, worst = _loop_monotone(I, P, aux_ref, command[0], command[1], branch_samples(I, sample_rate_hz),
+    ok, worst = _loop_monotone(I, P, _aux_values(aux_ref), command[0], command[1], branch_samples(I, sample_rate_hz),
                                found.direction)
     if not ok:
         return None
@@ -235,7 +239,7 @@ def operating_range(model: Any, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarra
     ``I, P``: the compiled model with dynamics and delay off; ``aux_ref``: the aux channels' values;
     ``sample_rate_hz``: the model's rate (a model with memory in time is traced slowly at it)."""
     (a, b), source = fitted_input_range(model, limits)
-    aux_ref = np.asarray(aux_ref, float).ravel() if np.size(aux_ref) else np.zeros(1)
+    aux_ref = _aux_values(aux_ref)
     n = branch_samples(I, sample_rate_hz)
     rises, worst = _loop_monotone(I, P, aux_ref, a, b, n)
     result = OperatingRange((a, b), source, (a, b), worst["output"], rises, max(worst["fall"], 0.0),
