@@ -66,9 +66,14 @@ WRITER_TIMEOUT_S = 30.0
 POLL_S = 0.002
 #: stores become visible to other processes in program order (x86-64's TSO memory model)
 ORDERED_STORES = platform.machine().lower() in ("x86_64", "amd64", "i386", "i686")
-# the ring's header, int64: chunks handed over, chunks written, samples flushed of the run, then per slot
-# the samples in it
-_HANDED, _WRITTEN, _FLUSHED, _COUNTS = 0, 1, 2, 3
+# the ring's header, int64: chunks handed over, chunks written, samples flushed of the run, what the writer
+# is doing and since when (CLOCK_MONOTONIC, ns: one clock for every process), then per slot the samples in it
+_HANDED, _WRITTEN, _FLUSHED, _DOING, _SINCE, _COUNTS = 0, 1, 2, 3, 4, 5
+#: what the writer is doing (header[_DOING]), told when it frees no slot in time: was it waiting for
+#: chunks, or in which call on the file has it been stuck
+_POLLING, _APPENDING, _FLUSHING, _OPENING, _CLOSING = 0, 1, 2, 3, 4
+_DOINGS = {_POLLING: "waiting for chunks", _APPENDING: "appending a chunk to the file",
+           _FLUSHING: "flushing the file", _OPENING: "opening the file", _CLOSING: "closing the file"}
 
 
 
@@ -86,6 +91,28 @@ def _map_ring(fd: int, shape: tuple[int, int, int]) -> tuple[mmap.mmap, np.ndarr
     return mapped, header, ring
 
 
+def _doing(header: np.ndarray, what: int) -> None:
+    header[_SINCE] = time.monotonic_ns()
+    header[_DOING] = what
+
+
+def _process_state(pid: int) -> str:
+    """The kernel's word on a process (Linux): its state letter and, if told, the call it sleeps in."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        state = stat[stat.rindex(")") + 2:].split(" ", 1)[0]
+    except (OSError, ValueError, IndexError):
+        return ""
+    states = {"R": "running", "S": "sleeping", "D": "in uninterruptible I/O", "T": "stopped", "t": "stopped",
+              "Z": "a zombie"}
+    told = f"process state {state} ({states.get(state, 'other')})"
+    try:
+        wchan = Path(f"/proc/{pid}/wchan").read_text().strip()
+    except OSError:
+        wchan = ""
+    return f"{told}, in {wchan}" if wchan and wchan != "0" else told
+
+
 def _serve(control: Connection, data: socket.socket, header: np.ndarray, ring: np.ndarray, ordered: bool) -> None:
     """The writer process: runs opened and closed on ``control``, chunks taken from the ring."""
     slots = ring.shape[0]
@@ -95,6 +122,7 @@ def _serve(control: Connection, data: socket.socket, header: np.ndarray, ring: n
     late_row = -1
     failed = ""
     written = int(header[_WRITTEN])
+    _doing(header, _POLLING)
 
     def drain() -> None:
         """Write every chunk handed over (a chunk of a failed run is skipped but freed all the same)."""
@@ -106,6 +134,7 @@ def _serve(control: Connection, data: socket.socket, header: np.ndarray, ring: n
             if run is not None and not failed:
                 block = ring[slot, :, :n]
                 try:
+                    _doing(header, _APPENDING)
                     run.append({name: block[i] for i, name in enumerate(names)})
                     if stats is not None:
                         stats.add(block[late_row])
@@ -127,24 +156,30 @@ def _serve(control: Connection, data: socket.socket, header: np.ndarray, ring: n
             drain()
             if written == before and run is not None and run.n_flushed != run.n_samples and (
                     not ordered or time.monotonic() - run.last_flush >= run.flush_interval_s):
+                _doing(header, _FLUSHING)
                 run.flush()  # appends stopped coming (a slow rate, a loop waiting): flush anyway
                 header[_FLUSHED] = run.n_flushed
+                _doing(header, _POLLING)
             if control not in ready:
                 continue
             message = control.recv()
             try:
                 if message[0] == "open":
                     _, path, group, names, flush_interval_s, period_s, paced = message
+                    _doing(header, _OPENING)
                     run = RunWriter(Path(path), group, [ChannelSpec(n, "") for n in names], flush_interval_s)
                     run.open()
                     late_row = names.index("lateness") if "lateness" in names else -1
                     stats = LoopStats(period_s, paced) if late_row >= 0 and period_s > 0 else None
                     failed = ""
                     header[_FLUSHED] = 0
+                    _doing(header, _POLLING)
                     control.send(("opened",))
                 elif message[0] == "close":
                     drain()  # the loop handed its last chunk over before it sent this
+                    _doing(header, _CLOSING)
                     n = run.close() if run is not None else 0
+                    _doing(header, _POLLING)
                     control.send(("error", failed) if failed else ("closed", n, stats.attrs() if stats else {}))
                     run, stats, failed = None, None, ""
                 elif message[0] == "exit":
@@ -242,12 +277,25 @@ class WriterProcess:
     def n_flushed(self) -> int:
         return int(self.header[_FLUSHED])
 
+    def doing(self) -> str:
+        """What the writer process is doing and for how long, and the kernel's word on it when it is
+        in a call on the file (its state letter: D is a disk that does not answer)."""
+        what = int(self.header[_DOING])
+        for_s = (time.monotonic_ns() - int(self.header[_SINCE])) / 1e9
+        if what == _POLLING:  # stamped at every look: an old stamp is a writer not given the processor
+            told = f"it is waiting for chunks and last looked {for_s:.1f} s ago"
+        else:
+            told = f"it has been {_DOINGS.get(what, 'doing something unknown')} for {for_s:.1f} s"
+        state = _process_state(self.pid)
+        return f"{told} ({state})" if state else told
+
     def _ended(self) -> RecordingWriterError:
         return RecordingWriterError(f"the recording's writer process ended (exit code {self._process.poll()})")
 
     def _expect(self, kind: str) -> tuple[Any, ...]:
         if not self._conn.poll(WRITER_TIMEOUT_S):
-            raise RecordingWriterError(f"the recording's writer process gave no answer in {WRITER_TIMEOUT_S:g} s")
+            raise RecordingWriterError(f"the recording's writer process gave no answer in {WRITER_TIMEOUT_S:g} s: "
+                                       f"{self.doing()}")
         try:
             reply = self._conn.recv()
         except (EOFError, OSError) as exc:
@@ -315,7 +363,7 @@ class StreamedRun:
             while w.handed - w.written(min(0.1, max(0.0, deadline - time.monotonic()))) >= slots:
                 if time.monotonic() >= deadline:
                     raise RecordingWriterError(f"the recording's writer process freed no slot in "
-                                               f"{WRITER_TIMEOUT_S:g} s (the disk is that far behind)")
+                                               f"{WRITER_TIMEOUT_S:g} s: {w.doing()}")
         self._slot = w.handed % slots
         return w.ring[self._slot]
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -120,6 +121,36 @@ def test_a_writer_process_that_dies_fails_the_run_with_its_reason_and_keeps_what
     (kept,) = Recording(path).runs
     assert kept.status == "failed" and "writer process" in kept.attrs["reason"]
     assert kept.n_samples >= 10  # what was written before it died
+
+
+@pytest.mark.parametrize("ordered", [True, False], ids=["shared-counters", "socket"])
+def test_a_writer_that_frees_no_slot_fails_the_run_saying_what_it_was_doing(tmp_path, ordered, monkeypatch):
+    """A stalled writer is told apart: stuck in a call on the file, or (here) not given the processor."""
+    import hilbench.recording.writer_process as wp
+
+    monkeypatch.setattr(wp, "WRITER_TIMEOUT_S", 1.0)
+    path = tmp_path / "r.h5"
+    writer = RecordingWriter(path)
+    with WriterProcess(len(CHANNELS), chunk=10, slots=2, ordered=ordered) as stream:
+        run = stream.open_run(begin(writer))
+        time.sleep(0.2)
+        os.kill(stream.pid, signal.SIGSTOP)  # what a starved or frozen writer looks like to the loop
+        try:
+            with pytest.raises(RecordingWriterError) as info:
+                for _ in range(3):
+                    block = run.slot()
+                    block[:, :10] = 1.0
+                    run.commit(10)
+            said = str(info.value)
+            assert "freed no slot in 1 s: it is waiting for chunks and last looked" in said, said
+            assert float(said.split("last looked ")[1].split(" s")[0]) >= 1.0, said
+            if sys.platform.startswith("linux"):
+                assert "(process state T (stopped)" in said, said
+        finally:
+            os.kill(stream.pid, signal.SIGCONT)
+        run.finish("failed", str(info.value))
+    (kept,) = Recording(path).runs
+    assert kept.status == "failed" and "last looked" in kept.attrs["reason"]
 
 
 def test_a_writer_that_stops_answering_reaches_the_user_as_one_line(capsys):
