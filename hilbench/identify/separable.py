@@ -475,30 +475,48 @@ def _set_references(model: Model, runs: list[RunData], train_masks: list[np.ndar
 
 
 #: rounds of the alternating fit of an effect that reads a reference (decision 0043)
-#: a local search ends when its last STALL_ITERATIONS iterations together lowered the training sse by
-#: less than STALL_GAIN of itself (the rmse moves in its sixth digit): a search crawling along a
-#: parameter pinned at its bound or a flat valley spent most of its budget there (a knee pinned at
-#: its sharpest with two creep times: 1000 evaluations for the last 0.02 % of the sse, 60 s of a
-#: 64 s refit), while ftol stays strict for the searches that still converge
-STALL_ITERATIONS, STALL_GAIN = 5, 1e-5
+#: a local search ends when its last STALL_STEPS steps (each step's evaluations, its Jacobian's
+#: included) together lowered the lowest training sse seen by less than STALL_GAIN of it (the rmse
+#: moves in its sixth digit): a search crawling along a parameter pinned at its bound or a flat
+#: valley spent most of its budget there (a knee pinned at its sharpest with two creep times: 1000
+#: evaluations for the last 0.02 % of the sse, 60 s of a 64 s refit), while ftol stays strict for
+#: the searches that still converge (decision 0115)
+STALL_STEPS, STALL_GAIN = 5, 1e-5
+
+
+class _Stalled(Exception):
+    """Raised from the residual to end a local search that stalls (scipy < 1.16 has no callback)."""
 
 
 def _local_search(problem: _Problem, x_start: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                   max_evaluations: int) -> optimize.OptimizeResult:
     """One bounded trust-region search from ``x_start``: at most ``max_evaluations / n`` steps for
     ``n`` parameters (each step evaluates the weights once, its Jacobian ``n`` times more), ended
-    early when it stalls (:data:`STALL_GAIN`)."""
-    costs: list[float] = []
+    early when it stalls (:data:`STALL_GAIN`); the result holds the lowest-sse point evaluated."""
+    window = STALL_STEPS * (x_start.size + 1)
+    lowest: list[float] = []  # the lowest sse seen, after each evaluation
+    best: dict[str, Any] = {}
 
-    def stalled(intermediate_result: optimize.OptimizeResult) -> None:
-        costs.append(float(intermediate_result.cost))
-        if len(costs) > STALL_ITERATIONS and costs[-1 - STALL_ITERATIONS] - costs[-1] < STALL_GAIN * costs[-1]:
-            raise StopIteration
+    def residual(x: np.ndarray) -> np.ndarray:
+        r = problem.residual(x)
+        sse = float(r @ r)
+        if not lowest or sse < lowest[-1]:
+            best.update(x=x.copy(), fun=r.copy())
+            lowest.append(sse)
+        else:
+            lowest.append(lowest[-1])
+        if len(lowest) > window and lowest[-1 - window] - lowest[-1] < STALL_GAIN * lowest[-1]:
+            raise _Stalled
+        return r
 
-    return optimize.least_squares(
-        problem.residual, x_start, bounds=(lo, hi), method="trf", x_scale=np.maximum(hi - lo, 1e-9) / 10,
-        diff_step=1e-4, max_nfev=max_evaluations // max(1, x_start.size), ftol=1e-9, xtol=1e-9, callback=stalled,
-    )
+    try:
+        return optimize.least_squares(
+            residual, x_start, bounds=(lo, hi), method="trf", x_scale=np.maximum(hi - lo, 1e-9) / 10,
+            diff_step=1e-4, max_nfev=max_evaluations // max(1, x_start.size), ftol=1e-9, xtol=1e-9,
+        )
+    except _Stalled:
+        return optimize.OptimizeResult(x=best["x"], fun=best["fun"], nfev=len(lowest), status=-1,
+                                       message="stalled", success=True)
 
 
 REFERENCE_ROUNDS = 3
