@@ -474,7 +474,6 @@ def _set_references(model: Model, runs: list[RunData], train_masks: list[np.ndar
                              float(np.max(np.abs(h))) if h.size else 1.0)
 
 
-#: rounds of the alternating fit of an effect that reads a reference (decision 0043)
 #: a local search ends when its last STALL_STEPS steps (each step's evaluations, its Jacobian's
 #: included) together lowered the lowest training sse seen by less than STALL_GAIN of it (the rmse
 #: moves in its sixth digit): a search crawling along a parameter pinned at its bound or a flat
@@ -519,6 +518,7 @@ def _local_search(problem: _Problem, x_start: np.ndarray, lo: np.ndarray, hi: np
                                        message="stalled", success=True)
 
 
+#: rounds of the alternating fit of an effect that reads a reference (decision 0043)
 REFERENCE_ROUNDS = 3
 
 

@@ -72,10 +72,8 @@ _HANDED, _WRITTEN, _FLUSHED, _DOING, _SINCE, _COUNTS = 0, 1, 2, 3, 4, 5
 #: what the writer is doing (header[_DOING]), told when it frees no slot in time: was it waiting for
 #: chunks, or in which call on the file has it been stuck
 _POLLING, _APPENDING, _FLUSHING, _OPENING, _CLOSING = 0, 1, 2, 3, 4
-_DOINGS = {_POLLING: "waiting for chunks", _APPENDING: "appending a chunk to the file",
-           _FLUSHING: "flushing the file", _OPENING: "opening the file", _CLOSING: "closing the file"}
-
-
+_DOINGS = {_APPENDING: "appending a chunk to the file", _FLUSHING: "flushing the file",
+           _OPENING: "opening the file", _CLOSING: "closing the file"}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -92,6 +90,7 @@ def _map_ring(fd: int, shape: tuple[int, int, int]) -> tuple[mmap.mmap, np.ndarr
 
 
 def _doing(header: np.ndarray, what: int) -> None:
+    """Stamp what the writer starts doing now (the time first: the loop reads the code, then the time)."""
     header[_SINCE] = time.monotonic_ns()
     header[_DOING] = what
 
