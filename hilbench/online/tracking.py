@@ -462,9 +462,15 @@ def _result(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, appli
     result.compensator["counters"] = comp.counters()
     result.compensator["reference"] = described
     result.health = run_health(cmd, applied, comp.bracket, (act.min, act.max),
-                               result.metrics.get("erms_pct", math.nan), comp.model)
+                               result.metrics.get("erms_pct", math.nan), comp.model, _span(ref))
     result.reference_clipped = clipped
     return result
+
+
+def _span(reference: np.ndarray) -> float | None:
+    """The reference's peak-to-peak (um): what the tracking ``erms_pct`` is a share of."""
+    finite = reference[np.isfinite(reference)]
+    return float(np.ptp(finite)) if finite.size else None
 
 
 def _finish_attrs(result: TrackResult) -> dict[str, Any]:

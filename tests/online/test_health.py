@@ -9,10 +9,10 @@ from hilbench.online.health import DEGRADED_EXIT, health_line, run_health
 
 
 class _Model:
-    def __init__(self, validation: float | None, train: float | None = None):
+    def __init__(self, validation: float | None, train: float | None = None, rmse_um: float | None = None):
         metrics = {}
         if validation is not None:
-            metrics["validation"] = {"erms_pct": validation}
+            metrics["validation"] = {"erms_pct": validation} | ({"rmse": rmse_um} if rmse_um is not None else {})
         if train is not None:
             metrics["train"] = {"erms_pct": train}
         self.info = {"metrics": metrics} if metrics else {}
@@ -43,3 +43,19 @@ def test_the_error_threshold_is_twice_the_model_or_three_tenths_more() -> None:
     assert unknown["model_erms_pct"] is None and not unknown["degraded"]
     assert "unknown" in health_line(unknown) and health_line(unknown).endswith("- ok")
     assert DEGRADED_EXIT == 3
+
+
+def test_the_model_error_is_put_on_the_reference_span_before_it_is_compared() -> None:
+    # a model scored at 0.5 um rms over a 100 um recorded range (0.5 %); a reference over 40 um of it
+    # tracked at the same 0.5 um rms is 1.25 % of its span: the model's own error on that span
+    u = np.linspace(0.0, 1.0, 100)
+    model = _Model(0.5, rmse_um=0.5)
+    same = run_health(u, u, (-1.0, 2.0), (-1.0, 2.0), 1.25, model, reference_span_um=40.0)
+    assert same["model_erms_on_reference_pct"] == pytest.approx(1.25)
+    assert same["erms_allowed_pct"] == pytest.approx(2.5) and not same["degraded"]
+    assert "0.5 um" in health_line(same) and "1.25 % of the reference's span" in health_line(same)
+    # three times the model's error in um is degraded whatever the span
+    worse = run_health(u, u, (-1.0, 2.0), (-1.0, 2.0), 3.75, model, reference_span_um=40.0)
+    assert worse["degraded"] and "rmse 0.5 um" in worse["reasons"][0]
+    # on the compared span the model's erms_pct alone would have flagged the first run (1.25 > 1.0)
+    assert run_health(u, u, (-1.0, 2.0), (-1.0, 2.0), 1.25, _Model(0.5))["degraded"]
