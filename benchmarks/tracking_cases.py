@@ -331,31 +331,58 @@ def _reference_draws(rng: np.random.Generator, d: RigDraw) -> list[dict[str, Any
     return out
 
 
-#: the quasi-static range: a full-range triangle at the plan's quasi-static rate, this many cycles
-#: (the last one read), its output smoothed over this share of a cycle (the sensor's noise)
+#: the quasi-static range: full-range triangles at the plan's quasi-static rate, at least this many
+#: cycles after the approach, and as many as the longest reference lasts (a load or temperature
+#: moves the range while a run goes on; at most :data:`REACH_MAX_CYCLES`); each cycle's output
+#: smoothed over this share of a cycle (the sensor's noise)
 REACH_CYCLES = 2
+REACH_MAX_CYCLES = 40
 REACH_SMOOTHING = 0.005
 
 
+def reference_seconds(d: RigDraw) -> float:
+    """How long the longest reachable reference of ``d`` lasts (s)."""
+    out = 0.0
+    for r in d.reference_draws:
+        k = r["kind"]
+        if k in ("sine", "triangle"):
+            out = max(out, r["cycles"] / r["frequency_hz"])
+        elif k == "multitone":
+            out = max(out, r["duration_s"])
+        elif k == "steps":
+            out = max(out, len(r["levels"]) * r["hold_s"])
+        elif k == "attenuated-triangle":
+            out = max(out, r["cycles"] / min(r["frequency_start_hz"], r["frequency_end_hz"]))
+    return out
+
+
 def quasi_static_range(rig_path: str, d: RigDraw) -> tuple[float, float]:
-    """The output range (um) the plant holds quasi-statically over its whole command range: a slow
-    full-range triangle on a freshly opened rig (as every tracking run opens one), the last cycle's
-    output smoothed against the sensor's noise. What a reference can ask for; the range a sweep
-    records also holds the overshoot where a fast run starts and noise peaks, which no reference can
-    be held at."""
+    """The output range (um) the plant holds quasi-statically over its whole command range, whatever
+    its load or temperature does while a reference runs: slow full-range triangles on a freshly opened
+    rig (as every tracking run opens one) for as long as the longest reference lasts, each cycle's
+    output smoothed against the sensor's noise; the range is the lowest of the cycles' maxima and the
+    highest of their minima (one cycle's range where nothing drifts). What a reference can ask for all
+    along; the range a sweep records also holds the overshoot where a fast run starts and noise
+    peaks, which no reference can be held at."""
     from hilbench.rig.config import load_rig
     from hilbench.rig.rig import Rig
 
     cfg = load_rig(rig_path)
+    f_qs = d.drive_hz[0]
+    cycles = int(min(REACH_MAX_CYCLES, max(REACH_CYCLES, math.ceil(reference_seconds(d) * f_qs) + 1)))
     with Rig(cfg) as rig:
-        half = max(8, int(round(0.5 * rig.sample_rate_hz / d.drive_hz[0])))
+        half = max(8, int(round(0.5 * rig.sample_rate_hz / f_qs)))
         up, down = np.linspace(d.lo, d.hi, half), np.linspace(d.hi, d.lo, half)
         start = np.linspace(rig.last_applied, d.lo, half)
-        u = np.concatenate([start, *([up, down] * REACH_CYCLES)])
-        y = rig.measure(rig.apply(u))["output"][-2 * half:]
+        u = np.concatenate([start, *([up, down] * cycles)])
+        y = rig.measure(rig.apply(u))["output"][half:].reshape(cycles, 2 * half)
     k = max(3, int(REACH_SMOOTHING * 2 * half))
-    ys = np.convolve(y[np.isfinite(y)], np.ones(k) / k, mode="valid")
-    return float(ys.min()), float(ys.max())
+    highs, lows = [], []
+    for cycle in y:
+        ys = np.convolve(cycle[np.isfinite(cycle)], np.ones(k) / k, mode="valid")
+        highs.append(float(ys.max()))
+        lows.append(float(ys.min()))
+    return max(lows), min(highs)
 
 
 def references(d: RigDraw, y_lo: float, y_hi: float) -> list[dict[str, Any]]:
