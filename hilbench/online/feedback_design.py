@@ -39,9 +39,11 @@ amplifies what lies near and above the crossover (and feeds the noise back). The
 largest gain whose predicted error, at the worst local gain of the range, is not above
 feed-forward's: a reference meets slow errors the training residual lacks (an offset of the starting
 state, a drift), and those the integrator removes the better the higher its gain, so the gain is not
-lowered further than the training error asks. Where every gain raises it (the residual is the sensor's
-noise, or lies near every crossover the margins allow), or the gain left has an integral time longer
-than the longest training run, the loop is left open (ki = 0) and says so.
+lowered further than the training error asks. The same holds for the residual on the rows the fit
+held out (the validation rows of each run), the error feed-forward leaves on drives the model was not
+fitted on: a gain must not be predicted to raise either (decision 0117). Where every gain raises one
+(the residual is the sensor's noise, or lies near every crossover the margins allow), or the gain left
+has an integral time longer than the longest training run, the loop is left open (ki = 0) and says so.
 :func:`check` evaluates user gains on the same loop and raises
 :class:`InstabilityError` when a pole leaves the unit circle at any gain of the range.
 """
@@ -107,6 +109,10 @@ class IdentifiedLoop:
     #: power per bin); its sum is residual_um^2. None without training data
     residual_spectrum: tuple[np.ndarray, np.ndarray] | None = None
     longest_run_s: float | None = None  # the longest training run (s): the slowest error it resolves
+    #: the same for the rows the fit held out (the validation rows of each run), None when it held
+    #: none: the error feed-forward leaves on drives the model was not fitted on
+    held_out_um: float | None = None
+    held_out_spectrum: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def has_dynamics(self) -> bool:
@@ -133,7 +139,8 @@ class IdentifiedLoop:
                 "model_delay_samples": int(self.delay_samples), "measurement_delay_samples": 1,
                 "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none",
                 "source": self.source, "noise_um": self.noise_um,
-                "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um}
+                "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um,
+                "held_out_error_um": self.held_out_um}
 
 
 # ====================================================================================================
@@ -263,6 +270,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     squares: list[float] = []
     counts: list[int] = []
     residuals: list[tuple[np.ndarray, float]] = []
+    held_out: list[tuple[np.ndarray, float]] = []
     used = 0
     compiled: dict[float, Any] = {}
     for run in runs:
@@ -276,7 +284,10 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
             y_mod = compiled[run_fs].block(u, aux or None)
         except Exception:  # noqa: BLE001  (a model that cannot run on the record: not evidence)
             continue
-        u, y, y_mod = u[:n_train], y[:n_train], np.asarray(y_mod, float)[:n_train]
+        y_mod = np.asarray(y_mod, float)
+        rest = (y[n_train:] - y_mod[n_train:])
+        rest = rest[np.isfinite(rest)]
+        u, y, y_mod = u[:n_train], y[:n_train], y_mod[:n_train]
         got = _lag_and_gains(y, np.asarray(y_mod, float))
         if got is None:
             continue
@@ -290,6 +301,8 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         bands.append(excited_bandwidth_hz(u, run_fs))
         r = (y - y_mod)[np.isfinite(y) & np.isfinite(y_mod)]
         residuals.append((r, float(run_fs)))
+        if rest.size:
+            held_out.append((rest, float(run_fs)))
         squares.append(float(np.sum(r * r)))
         counts.append(int(r.size))
         used += 1
@@ -318,10 +331,16 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
     centres, power, longest = residual_spectrum(residuals, fs)
+    ho_um, ho_spectrum = None, None
+    if held_out:
+        ho_centres, ho_power, _ = residual_spectrum(held_out, fs)
+        ho_spectrum = (ho_centres, ho_power)
+        ho_um = math.sqrt(sum(float(np.sum(r * r)) for r, _ in held_out) / sum(r.size for r, _ in held_out))
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
                           noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
                           residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
-                          residual_spectrum=(centres, power), longest_run_s=longest)
+                          residual_spectrum=(centres, power), longest_run_s=longest,
+                          held_out_um=ho_um, held_out_spectrum=ho_spectrum)
 
 
 # ====================================================================================================
@@ -378,14 +397,16 @@ def _meets(m: dict[str, Any], loop: IdentifiedLoop) -> bool:
             and m["phase_margin_deg"] >= MIN_PHASE_MARGIN_DEG and m["crossover_hz"] <= cap)
 
 
-def predicted_error(pid: PID, loop: IdentifiedLoop) -> float | None:
-    """The rms error (um) the loop closed with ``pid`` is predicted to leave of the training residual,
-    at the worst local gain of the range: sqrt(sum over frequency of the residual's power times
-    |S|^2), S = 1 / (1 + L) the loop's sensitivity. With no controller it is the residual's rms
-    (feed-forward's own error). None without training data."""
-    if loop.residual_spectrum is None:
+def predicted_error(pid: PID, loop: IdentifiedLoop, *, held_out: bool = False) -> float | None:
+    """The rms error (um) the loop closed with ``pid`` is predicted to leave of the training residual
+    (``held_out``: of the residual on the rows the fit held out), at the worst local gain of the
+    range: sqrt(sum over frequency of the residual's power times |S|^2), S = 1 / (1 + L) the loop's
+    sensitivity. With no controller it is the residual's rms (feed-forward's own error). None
+    without that residual."""
+    spectrum = loop.held_out_spectrum if held_out else loop.residual_spectrum
+    if spectrum is None:
         return None
-    f, p = loop.residual_spectrum
+    f, p = spectrum
     if pid.kp == 0.0 and pid.ki == 0.0 and pid.kd == 0.0:
         return math.sqrt(float(np.sum(p)))
     dc = f == 0.0  # an integrator removes a constant error (its response is infinite there)
@@ -420,21 +441,27 @@ def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, 
     ceiling = ki = lo
     m_max = margins(PID(0.0, ceiling, 0.0), loop)
     ff_error = predicted_error(PID(0.0, 0.0, 0.0), loop)
-    best = None
+    ff_held = predicted_error(PID(0.0, 0.0, 0.0), loop, held_out=True)
+    best = best_held = None
     if ff_error is not None:
         # the largest gain not predicted to raise the training error: what the training drives leave
         # near the crossover sets the ceiling; below it the integrator removes whatever slow error a
-        # reference meets (an offset of the starting state, a drift) that the training residual lacks
+        # reference meets (an offset of the starting state, a drift) that the training residual lacks.
+        # Nor the error on the rows the fit held out (decision 0117): where the model's error there is
+        # the sensor's noise, the training residual's slow part (the runs' starts from rest, errors
+        # the held-out rows lack) promised a gain a new reference does not pay for, and the noise
+        # fed back near the crossover made it worse
         for k in np.geomspace(ceiling, ceiling * KI_SPAN, KI_CANDIDATES):
             best, ki = predicted_error(PID(0.0, float(k), 0.0), loop), float(k)
-            if best <= ff_error:
+            best_held = predicted_error(PID(0.0, float(k), 0.0), loop, held_out=True)
+            if best <= ff_error and (ff_held is None or best_held <= ff_held):  # type: ignore[operator]
                 break
         else:
-            best, ki = ff_error, 0.0
+            best, best_held, ki = ff_error, ff_held, 0.0
         if loop.longest_run_s and 0.0 < ki * loop.longest_run_s < 1.0:
             # an integral time longer than the longest training run: it removes nothing within a run
             # of that length, and the prediction cannot resolve what it does over a longer one
-            best, ki = ff_error, 0.0
+            best, best_held, ki = ff_error, ff_held, 0.0
     pid = PID(0.0, float(ki), 0.0, i_limit=i_limit, reversal_guard=True)
     m = margins(pid, loop)
     m["ki_max_per_s"] = float(ceiling)
@@ -444,6 +471,9 @@ def design(loop: IdentifiedLoop, *, i_limit: float | None = None) -> tuple[PID, 
     if ff_error is not None and best is not None:
         m["predicted_error_um"] = float(best)
         m["feedforward_error_um"] = float(ff_error)
+    if ff_held is not None and best_held is not None:
+        m["predicted_held_out_error_um"] = float(best_held)
+        m["feedforward_held_out_error_um"] = float(ff_held)
     return pid, m
 
 

@@ -563,13 +563,18 @@ class Compensator:
             self.notes.append(
                 f"feedback gain chosen for this model's training error ({m['feedforward_error_um']:.3g} um rms, sensor "
                 f"noise included): predicted {m['predicted_error_um']:.3g} um with the loop closed at the worst local "
-                f"gain ({ratio:.2f}x)" + (f"; the margins allowed ki up to {m['ki_max_per_s']:.4g} 1/s, more would "
-                                           "raise the error near the crossover" if m["error_limited"] else ""))
+                f"gain ({ratio:.2f}x)"
+                + (f"; on the rows the fit held out {m['feedforward_held_out_error_um']:.3g} -> "
+                   f"{m['predicted_held_out_error_um']:.3g} um" if "feedforward_held_out_error_um" in m else "")
+                + (f"; the margins allowed ki up to {m['ki_max_per_s']:.4g} 1/s, more would "
+                   "raise the error near the crossover" if m["error_limited"] else ""))
         if m.get("open"):
             self.notes.append(
                 f"feedback left open (ki = 0): every integral gain up to {m['ki_max_per_s']:.4g} 1/s is predicted to raise "
-                f"this model's error on this rig ({m['feedforward_error_um']:.3g} um rms on its training runs: the "
-                "sensor's noise, or error near the crossover the margins allow); the run is feed-forward")
+                f"this model's error on this rig ({m['feedforward_error_um']:.3g} um rms on its training runs"
+                + (f", {m['feedforward_held_out_error_um']:.3g} um on the rows the fit held out"
+                   if "feedforward_held_out_error_um" in m else "")
+                + ": the sensor's noise, or error near the crossover the margins allow); the run is feed-forward")
 
     def _range_notes(self, kind: str) -> None:
         r, u = self.range, self.unit
@@ -776,7 +781,9 @@ class Compensator:
                                "designed": bool(self.checks.get("closed_loop", {}).get("designed", False)),
                                "margins": {k: self.margins[k] for k in ("gain_margin_db", "phase_margin_deg",
                                                                         "crossover_hz", "max_pole_radius",
-                                                                        "predicted_error_um", "feedforward_error_um")
+                                                                        "predicted_error_um", "feedforward_error_um",
+                                                                        "predicted_held_out_error_um",
+                                                                        "feedforward_held_out_error_um")
                                            if k in self.margins}
                                if self.margins else None,
                                "loop": self.loop.describe() if self.loop is not None else None}

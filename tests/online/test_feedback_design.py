@@ -142,6 +142,28 @@ def test_a_slow_model_error_gets_the_margins_gain() -> None:
     assert m["predicted_error_um"] < 0.2 * m["feedforward_error_um"]
 
 
+def test_a_gain_the_held_out_rows_would_pay_for_in_noise_is_not_taken() -> None:
+    """Training leaves a slow error (a run's start from rest) over the sensor's noise; on the rows the
+    fit held out the model's error is the noise alone. The training residual alone asks for a gain
+    near the margins' ceiling, which raises the held-out error (the noise fed back near the
+    crossover, Bode's integral); with both, the gain is not predicted to raise either (decision 0117)."""
+    t = np.arange(20000) / FS
+    rng = np.random.default_rng(7)
+    train = 0.2 * np.exp(-t / 0.5) + rng.normal(0.0, 0.02, t.size)
+    held = rng.normal(0.0, 0.02, 8000)
+    loop = _spectrum_loop(train)
+    training_only, m0 = FD.design(loop)
+    assert training_only.ki >= 0.1 * m0["ki_max_per_s"]
+    centres, power, _ = FD.residual_spectrum([(held, FS)], FS)
+    loop.held_out_spectrum, loop.held_out_um = (centres, power), float(np.sqrt(np.mean(held ** 2)))
+    assert FD.predicted_error(training_only, loop, held_out=True) > 1.02 * loop.held_out_um
+    pid, m = FD.design(loop)
+    assert pid.ki < 0.01 * training_only.ki
+    assert m["predicted_held_out_error_um"] <= m["feedforward_held_out_error_um"]
+    assert m["feedforward_held_out_error_um"] == pytest.approx(loop.held_out_um, rel=1e-9)
+    assert m["predicted_error_um"] <= m["feedforward_error_um"]
+
+
 def test_an_error_near_the_crossover_lowers_the_gain() -> None:
     """The error where the ceiling's loop would amplify it (near its crossover), beside a slow one:
     the design backs off to a gain whose prediction is no worse than feed-forward's."""
