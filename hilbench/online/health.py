@@ -115,7 +115,7 @@ def _model_error(health: dict[str, Any]) -> str:
     """The model's own error as the verdict compares it: on the reference's span when known."""
     if health.get("model_erms_on_reference_pct") is not None:
         return (f"rmse {health['model_rmse_um']:.3g} um, {health['model_erms_on_reference_pct']:.3g} % of the "
-                f"reference's span; {health['model_erms_pct']:.3g} % of its own")
+                f"reference's span; {health['model_erms_pct']:.3g} % of its own data's span")
     return f"erms {health['model_erms_pct']:.3g} %"
 
 
