@@ -178,6 +178,14 @@ def test_track_reports_health_and_strict_passes_a_healthy_run(fitted: tuple[Path
     fit = json.loads(model.read_text())["metrics"]["validation"]["erms_pct"]
     assert health["model_erms_pct"] == pytest.approx(fit) and health["model_erms_split"] == "validation"
     assert health["erms_pct"] == pytest.approx(doc["metrics"]["erms_pct"])
+    # the model's error is compared on the reference's span (decision 0116): its rmse over the span
+    # the tracking erms_pct is a share of (rmse / erms_pct)
+    rmse = json.loads(model.read_text())["metrics"]["validation"]["rmse"]
+    ref_span = 100.0 * doc["metrics"]["rmse"] / doc["metrics"]["erms_pct"]
+    assert health["model_rmse_um"] == pytest.approx(rmse)
+    assert health["model_erms_on_reference_pct"] == pytest.approx(100.0 * rmse / ref_span, rel=1e-6)
+    m = health["model_erms_on_reference_pct"]
+    assert health["erms_allowed_pct"] == pytest.approx(max(2.0 * m, m + 0.3))
     assert health["at_limit_pct"] <= 1.0 and health["slew_limited_pct"] <= 1.0
     assert not health["degraded"] and health["reasons"] == []
     assert "reference_clipped" not in doc
