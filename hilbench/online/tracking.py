@@ -522,9 +522,12 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     where = (f"the reachable output range of {comp.model.spec!r} on this rig is [{lo:.4g}, {hi:.4g}] um "
              f"(its static map over [{span[0]:.4g}, {span[1]:.4g}] {comp.unit}{within})").replace(" ,", ",").replace(" )", ")")
     if comp.range.sub_range:
-        fl, fh = comp.range.fitted
+        r = comp.range
+        fl, fh = r.fitted
+        way = "falls" if r.direction > 0 else "rises"
         where += (f", the part of the fitted [{fl:.4g}, {fh:.4g}] {comp.unit} where one output has one command "
-                  "(the loop turns over elsewhere)").replace("  ", " ")
+                  f"(elsewhere the loop turns over: its {r.fall_branch} branch {way} back by {r.fall_um:.3g} um "
+                  f"from {r.fall_from[0]:.4g} to {r.fall_to[0]:.4g} {comp.unit})").replace("  ", " ")
     if not allow_clip:
         raise UserError(f"the reference leaves what the actuator can reach: {where}; sample {k} (t = {k / fs:.6g} s) "
                         f"asks for {ref[k]:.4g} um ({count} of {ref.size} samples outside)",

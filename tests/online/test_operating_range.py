@@ -109,6 +109,7 @@ def test_duhem_d_works_on_the_monotone_part_of_its_figure_eight(gmm: dict) -> No
     line = info.value.line()
     assert f"[{r.command[0]:.4g}, {r.command[1]:.4g}] A" in line and "fitted [-6, 6] A" in line
     assert "6.5" not in line and "reachable output range" in line
+    assert f"branch {'falls' if r.direction > 0 else 'rises'} back by {r.fall_um:.3g} um" in line  # where it turns over
     lo, hi = r.output
     result = track("gmm-issf-duhem", model, _sine(lo + 0.1 * (hi - lo), hi - 0.1 * (hi - lo)))
     assert np.all((result.command >= r.command[0]) & (result.command <= r.command[1]))
