@@ -82,19 +82,6 @@ def ff_bound(val_erms_pct: float) -> float:
     return max(2.0 * val_erms_pct, val_erms_pct + 0.3)
 
 
-def reference_span_um(row: dict[str, Any]) -> float | None:
-    """The span the run's ``erms_pct`` is a share of (the reference's peak-to-peak, um)."""
-    erms, rmse = row.get("erms_pct"), row.get("rmse_um")
-    return 100.0 * rmse / erms if erms and rmse is not None and erms > 0 else None
-
-
-def model_on_span_pct(val_rmse_um: float, row: dict[str, Any]) -> float | None:
-    """The model's validation rmse as a share of the run's reference span, %: the tracking erms_pct's
-    own denominator (decision 0116); the model's ``erms_pct`` is over the validation rows' span."""
-    span = reference_span_um(row)
-    return 100.0 * val_rmse_um / span if span else None
-
-
 def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None) -> dict[str, Any]:
     from hilbench.errors import UserError
     from hilbench.online.tracking import track
@@ -123,7 +110,9 @@ def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None
                commands_limited=int(res.limited), compensator=comp.get("kind", comp.get("method")),
                feedback_gains=comp.get("feedback"), compensator_notes=list(comp.get("notes", [])),
                compensator_checks=comp.get("checks"),
-               loop_seconds=float(res.seconds))
+               loop_seconds=float(res.seconds),
+               # the model's validation rmse over the reference's span, as the run's health compares it
+               validation_on_reference_pct=res.health.get("model_erms_on_reference_pct"))
     try:
         model_erms = _model_erms_pct(model, res, rig_path)
     except Exception as exc:  # noqa: BLE001 - a diagnostic column; its failure is noted, the row stays
@@ -238,7 +227,6 @@ def run_case(seed: int, folder: str) -> dict[str, Any]:
                 if "erms_pct" in r:  # erms against the reference's span, rmse in um against the model's
                     r["over_validation"] = r["erms_pct"] / val if val > 0 else None
                     r["rmse_over_validation_rmse"] = r["rmse_um"] / val_rmse if val_rmse > 0 else None
-                    r["validation_on_reference_pct"] = model_on_span_pct(val_rmse, r)
             if ref["reachable"] and "erms_pct" in ff:
                 # the bound on one span: the model's validation rmse over the reference's span; the
                 # issue's formula with the model's erms_pct as it stands (over the validation rows'

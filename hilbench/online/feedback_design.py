@@ -285,10 +285,10 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         except Exception:  # noqa: BLE001  (a model that cannot run on the record: not evidence)
             continue
         y_mod = np.asarray(y_mod, float)
-        rest = (y[n_train:] - y_mod[n_train:])
+        rest = y[n_train:] - y_mod[n_train:]
         rest = rest[np.isfinite(rest)]
         u, y, y_mod = u[:n_train], y[:n_train], y_mod[:n_train]
-        got = _lag_and_gains(y, np.asarray(y_mod, float))
+        got = _lag_and_gains(y, y_mod)
         if got is None:
             continue
         lag, g, noise = got
@@ -335,7 +335,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     if held_out:
         ho_centres, ho_power, _ = residual_spectrum(held_out, fs)
         ho_spectrum = (ho_centres, ho_power)
-        ho_um = math.sqrt(sum(float(np.sum(r * r)) for r, _ in held_out) / sum(r.size for r, _ in held_out))
+        ho_um = math.sqrt(float(np.sum(ho_power)))  # the bins sum to the mean square
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
                           noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
                           residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
