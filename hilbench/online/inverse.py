@@ -191,6 +191,7 @@ class Compensator:
         reference_span: float | None = None,
         max_iterations: int = 60,
         unit: str = "",
+        plannable: bool = False,
     ):
 
         if model.weights is None:
@@ -269,7 +270,7 @@ class Compensator:
         # the general inverse solves the static map per sample: it needs that map rising, and it
         # brackets its solve by the operating range (outside it the model is extrapolated, and a
         # map that turns over there gives a second, falling root or a rail)
-        if kind == "general" and not self.range.invertible:
+        if kind == "general" and not self.range.invertible and not plannable:
             raise InstabilityError(self.range.not_rising(model.spec, unit),
                                    hint="fit the model on the range you will track in, where the actuator rises")
         # the polynomial kinds too: 004 eq. 16/20 and the I-M clamp hold where the model is known (a
@@ -345,6 +346,7 @@ class Compensator:
         if model.effect("delay") is not None:
             self.notes.append("delay not compensated in feed-forward (no preview): left to feedback")
         self.preview: dict[str, Any] | None = None
+        self.plan: dict[str, Any] | None = None  # what plan_path found (a path planned over the reference)
         #: samples the rig was held at the run's first command for the dynamics to settle (tracking)
         self.held_before_run = 0
         self.settle_note = ""  # set when the rig's output had not settled before the run
@@ -670,6 +672,84 @@ class Compensator:
                         "target_range_um": [float(np.min(target)), float(np.max(target))]}
         return target
 
+    #: the approach before a planned run: each of its two legs lasts at least this long (s) ...
+    APPROACH_LEG_S = 0.25
+    #: ... and the planned path holds the run's first target this long before it (s)
+    APPROACH_HOLD_S = 0.05
+
+    def plan_path(self, targets: np.ndarray, max_step: float, aux: dict[str, float] | None = None,
+                  lead_in: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Plan the commands over the whole reference's ``targets`` (um; the preview's) on a static map
+        that is not monotone (:mod:`hilbench.online.path_plan`), from the model's memory after the
+        commands ``lead_in`` (what the rig goes through first: the full-range cycle), and install the
+        run's part: feed-forward then replays it and feedback solves inside its monotone stretches.
+
+        The run's first target may need an overshoot to be reached (a reference starting at its
+        extremum), so an *approach* is planned before it: from where the lead-in leaves the output to
+        half the reference's span beyond its first target, on the side it comes from, then to that
+        target (two half-cosine legs of :data:`APPROACH_LEG_S` at least, and at least the time the
+        command needs to cross the range twice at ``max_step``), held :data:`APPROACH_HOLD_S`.
+        Returns the approach's commands (to apply after the lead-in) and the model's error along the
+        run's plan (um)."""
+        from hilbench.online import path_plan as PP
+
+        if not self.range.planned:
+            raise ValueError("plan_path needs an operating range set to plan over the fitted range")
+        t = np.ascontiguousarray(targets, dtype=np.float64)
+        a, b = self.range.fitted
+        y_lo, y_hi = self.range.loop_output
+        row = self._aux_row(aux).copy()
+        X = self.X.copy()
+        u0 = float(self.CX[K.S_UAPP])
+        if lead_in is not None and np.size(lead_in):
+            lead = np.ascontiguousarray(lead_in, dtype=np.float64)
+            ST.model_block(self.I, self.P, X, lead, np.ascontiguousarray(np.broadcast_to(row, (lead.size, row.size))),
+                           np.empty(lead.size))
+            u0 = float(lead[-1])
+        y0 = float(K.model_step_call(self.I, self.P, X.copy(), u0, row))
+        step = max_step if math.isfinite(max_step) and max_step > 0 else b - a
+        leg = max(math.ceil(self.APPROACH_LEG_S * self.fs), math.ceil(2.0 * (b - a) / step), 2)
+        moving = np.flatnonzero(np.diff(t) != 0.0)
+        first = 1.0 if moving.size == 0 else float(np.sign(t[moving[0] + 1] - t[0]))
+        span = float(np.ptp(t)) if t.size else 0.0
+        far = float(np.clip(t[0] - first * max(0.5 * span, 0.1 * (y_hi - y_lo)), y_lo, y_hi))
+        ease = 0.5 * (1.0 - np.cos(np.pi * np.arange(leg) / (leg - 1)))
+        approach = np.concatenate([y0 + (far - y0) * ease, far + (t[0] - far) * ease,
+                                   np.full(max(int(self.APPROACH_HOLD_S * self.fs), 1), t[0])])
+        plan = PP.plan_path(self.I, self.P, X, row, u0, np.concatenate([approach, t]), (a, b), step, y_hi - y_lo)
+        na = approach.size
+        run = slice(na, None)
+        error = plan.output[run] - t
+        n = t.size
+        o = self.CP.size
+        feedback_here = PP.feedback_samples(plan, np.concatenate([approach, t]), (a, b))[run]
+        self.CP = np.concatenate([self.CP, plan.command[run], plan.stretch_lo[run], plan.stretch_hi[run],
+                                  plan.slope[run], plan.direction[run], feedback_here.astype(np.float64)])
+        # feedback's correction is divided by the model's slope along the plan, floored at a quarter of
+        # its median: near a flat spot (an overshoot's extreme) it gets less gain, never more
+        self.CP[K.C_PLANG] = max(0.25 * float(np.median(np.abs(plan.slope[run]))), 1e-9)
+        self.CI[K.CI_PLAN], self.CI[K.CI_O_PLAN] = n, o
+        self.CP[K.C_ULO], self.CP[K.C_UHI] = a, b
+        self.bracket = (a, b)
+        self.CX[K.S_PLANK] = 0.0
+        turns = int(np.count_nonzero(np.diff(plan.direction[run])))
+        r = self.range
+        self.notes = [f"fitted input range [{a:.4g}, {b:.4g}] {self.unit} ({r.source}); reachable output "
+                      f"[{y_lo:.4g}, {y_hi:.4g}] um: the static map's major loop over it, overshoots included"
+                      .replace("  ", " ")] + \
+                     [note for note in self.notes if not note.startswith(("fitted input range", "the general inverse solves",
+                                                                          "the static map is not monotone over"))]
+        self.plan = {"samples": n, "approach_samples": na, "command_range": [float(np.min(plan.command[run])),
+                                                                              float(np.max(plan.command[run]))],
+                     "model_error_rms_um": float(np.sqrt(np.mean(error ** 2))), "model_error_max_um": float(np.max(np.abs(error))),
+                     "reversals": turns, "feedback_samples_pct": 100.0 * float(np.mean(feedback_here))}
+        self.notes.append((
+            f"the static map turns over in the fitted [{a:.4g}, {b:.4g}] {self.unit}: the commands are a path planned "
+            f"over the whole reference ({turns} reversals, some before the reference turns so the output's overshoot "
+            f"lands on its extremum); along it the model misses the reference by {self.plan['model_error_rms_um']:.3g} um "
+            f"rms, {self.plan['model_error_max_um']:.3g} um at most; approached in {na / self.fs:.3g} s").replace("  ", " "))
+        return plan.command[:na].copy(), error
+
     def oiir_arrays(self) -> tuple:
         """The identifier's kernel arguments (a small unused one when not adaptive, so the compiled
         loop has one signature)."""
@@ -791,6 +871,8 @@ class Compensator:
             doc["online"] = {"M": self.oiir.M, "N": self.oiir.N, "bias": self.oiir.bias}
         if self.preview is not None:
             doc["preview"] = self.preview
+        if self.plan is not None:
+            doc["planned_path"] = self.plan
         if self.held_before_run:
             doc["held_before_run_samples"] = self.held_before_run
         if self.settle_note:

@@ -66,7 +66,9 @@ CI_O_TW = 26  # CP offset: their weights
 CI_FASTCOMMIT = 27  # 1: the fpmpi commit updates the static model's memory directly (no model_step)
 CI_FESHARED = 28  # 1: the identifier's front end has the model's fractional polynomial (and fast commit)
 CI_PREVIEW = 29  # 1: the static part's target is CX[S_TARGET], set per sample from the previewed reference
-N_CI = 30
+CI_PLAN = 30  # samples of a planned command path (0 = none; hilbench.online.path_plan)
+CI_O_PLAN = 31  # CP offset: the plan's commands, stretch lows, stretch highs, slopes, directions, feedback (CI_PLAN each)
+N_CI = 32
 
 # -- CP: scalars ----------------------------------------------------------------------------------------
 C_US = 0  # model input scale (command units per normalised unit)
@@ -97,7 +99,8 @@ C_SHI = 24
 # (25: unused)
 C_GUARD = 26  # 1: the feedback's reversal guard (the command moves only the way the reference moves)
 C_SIGN = 27  # +1: the static map rises with the command over the bracket; -1: it falls (the general kind)
-N_CP = 28
+C_PLANG = 28  # with CI_PLAN: the floor of the slope feedback's correction is divided by, um per command unit
+N_CP = 29
 
 # -- CX: state --------------------------------------------------------------------------------------------
 S_U = 0  # last command (before the safety path), command units
@@ -134,7 +137,8 @@ S_SHIST = 30  # how many of S_SPREV, S_SPREV2, S_SPREV3 are consecutive Newton s
 S_RPREV = 31  # the last feed-forward target (the reference, or its preview), um: the reversal guard's direction
 S_GUARDN = 32  # samples whose command the reversal guard held
 S_TARGET = 33  # with CI_PREVIEW: what the static part must deliver this sample, um (hilbench.online.preview)
-N_CX = 34
+S_PLANK = 34  # with CI_PLAN: the planned sample this one is (counted by comp_update)
+N_CX = 35
 
 
 @njit(cache=True, _nrt=False)
@@ -280,15 +284,15 @@ def _pi_inverse_checked(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.nd
 
 @njit(cache=True, _nrt=False)
 def _resid(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
-           aux: np.ndarray, target: float, u: float) -> float:
-    """What the solver drives to zero, rising with u (a falling map's residual is negated)."""
+           aux: np.ndarray, target: float, u: float, sign: float) -> float:
+    """What the solver drives to zero, rising with u (a falling map's residual is negated: ``sign``)."""
     kind = CI[CI_KIND]
     if kind == K_GENERAL:
         o = CI[CI_O_XM]
         nx = CI[CI_NX]
         for i in range(nx):
             CX[o + i] = X[i]
-        return CP[C_SIGN] * (model_step(I, P, CX[o : o + nx], u, aux) - target)
+        return sign * (model_step(I, P, CX[o : o + nx], u, aux) - target)
     us = CP[C_US]
     v = u / us
     if kind == K_FPMPI:
@@ -299,14 +303,13 @@ def _resid(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.
 
 @njit(cache=True, _nrt=False)
 def _solve(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
-           aux: np.ndarray, target: float, x0: float) -> float:
-    """Safeguarded secant/bisection for the rising residual on [u_lo, u_hi], started at x0.
+           aux: np.ndarray, target: float, x0: float, a: float, b: float, sign: float) -> float:
+    """Safeguarded secant/bisection for the rising residual on [a, b], started at x0 (``sign``: the
+    map's sense there).
 
     The bracket narrows with every evaluation; a secant step that leaves it, or that did not halve
     the residual, is replaced by bisection; a domain end is probed before bisecting towards it, and
     a target beyond the reachable range gives that end (the command saturates)."""
-    a = CP[C_ULO]
-    b = CP[C_UHI]
     tol_f = CP[C_TOLF]
     tol_x = CP[C_TOLU]
     lo = a
@@ -314,7 +317,7 @@ def _solve(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.
     lo_known = False
     hi_known = False
     x = min(max(x0, a), b)
-    fx = _resid(CI, CP, CX, I, P, X, aux, target, x)
+    fx = _resid(CI, CP, CX, I, P, X, aux, target, x, sign)
     evals = 1
     s = CX[S_SLOPE]
     if not (s > 0.0) or not math.isfinite(s):
@@ -346,7 +349,7 @@ def _solve(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.
                 xn = 0.5 * (lo + hi) if lo_known else lo
             elif xn >= hi:
                 xn = 0.5 * (lo + hi) if hi_known else hi
-        fn = _resid(CI, CP, CX, I, P, X, aux, target, xn)
+        fn = _resid(CI, CP, CX, I, P, X, aux, target, xn, sign)
         evals += 1
         if xn != x:
             sn = (fn - fx) / (xn - x)
@@ -554,8 +557,30 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
     us = CP[C_US]
     a = CP[C_ULO]
     b = CP[C_UHI]
-    if kind == K_GENERAL:
-        u = _solve(CI, CP, CX, I, P, X, aux, target, CX[S_UAPP])
+    sign = CP[C_SIGN]
+    way_planned = 0.0
+    if CI[CI_PLAN] > 0:
+        # a planned path: feed-forward replays it; feedback adds its correction (um) over the model's
+        # slope along the plan (floored: a flat spot gets less gain, never more), kept inside the
+        # stretch around the planned command where one output has one command (hilbench.online.path_plan)
+        n = CI[CI_PLAN]
+        k = min(int(CX[S_PLANK]), n - 1)
+        o = CI[CI_O_PLAN]
+        u = CP[o + k]
+        g = CP[o + 3 * n + k]
+        way_planned = CP[o + 4 * n + k]
+        sign = 1.0 if g > 0.0 else (-1.0 if g < 0.0 else way_planned)
+        CX[S_SAT] = 0.0
+        if CI[CI_PID] != 0 and CP[o + 5 * n + k] != 0.0:
+            u += CX[S_PID] / (sign * max(abs(g), CP[C_PLANG]))
+            if u > CP[o + 2 * n + k]:
+                u = CP[o + 2 * n + k]
+                CX[S_SAT] = 1.0
+            elif u < CP[o + n + k]:
+                u = CP[o + n + k]
+                CX[S_SAT] = -1.0
+    elif kind == K_GENERAL:
+        u = _solve(CI, CP, CX, I, P, X, aux, target, CX[S_UAPP], a, b, sign)
     else:
         z = target - CP[C_CONST]
         if kind == K_PI:
@@ -566,7 +591,7 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
             if not math.isnan(u):
                 CX[S_USOL] = min(max(u, a), b)
             else:
-                u = _solve(CI, CP, CX, I, P, X, aux, xt, CX[S_UAPP])
+                u = _solve(CI, CP, CX, I, P, X, aux, xt, CX[S_UAPP], a, b, 1.0)
                 CX[S_USOL] = math.nan
         elif kind == K_IM:
             v = CX[S_VPREV]
@@ -576,7 +601,7 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
                 v = min(max(v, a / us), b / us)
             u = v * us
         else:
-            u = _solve(CI, CP, CX, I, P, X, aux, z, CX[S_UAPP])
+            u = _solve(CI, CP, CX, I, P, X, aux, z, CX[S_UAPP], a, b, 1.0)
         if kind != K_FPMPI and kind != K_MPI:
             CX[S_SAT] = 1.0 if u > b else (-1.0 if u < a else 0.0)
     u = min(max(u, a), b)
@@ -593,7 +618,8 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
         rp = CX[S_RPREV]
         if rp == rp and CX[S_STARTED] != 0.0:
             up = CX[S_UAPP]
-            way = CP[C_SIGN] * (heading - rp)  # the way the command follows the reference
+            # the way the command follows the reference (a plan's own direction: it turns early)
+            way = way_planned if way_planned != 0.0 else sign * (heading - rp)
             held = 0.0
             if way > 0.0 and u < up:
                 held = -1.0
@@ -628,6 +654,15 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
     CX[S_UAPP] = u_applied
     CX[S_VPREV] = u_applied / CP[C_US]
     CX[S_STARTED] = 1.0
+    sign = CP[C_SIGN]
+    fb_here = True
+    if CI[CI_PLAN] > 0:
+        n = CI[CI_PLAN]
+        k = min(int(CX[S_PLANK]), n - 1)
+        g = CP[CI[CI_O_PLAN] + 3 * n + k]
+        sign = 1.0 if g > 0.0 else (-1.0 if g < 0.0 else CP[CI[CI_O_PLAN] + 4 * n + k])
+        fb_here = CP[CI[CI_O_PLAN] + 5 * n + k] != 0.0  # where the plan lets feedback act (path_plan.feedback_samples)
+        CX[S_PLANK] += 1.0
     if not math.isfinite(y_meas):
         return
     CX[S_NOBS] += 1.0
@@ -656,7 +691,7 @@ def comp_update(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P
         e = y_d - y_meas
         # conditional integration: not while the command is limited in the direction e pushes (the
         # output's direction is the command's times the map's sense)
-        if not (CX[S_SAT] * CP[C_SIGN] * e > 0.0):
+        if fb_here and not (CX[S_SAT] * sign * e > 0.0):
             i = CX[S_I] + CP[C_KIT] * e
             lim = CP[C_ILIM]
             CX[S_I] = min(max(i, -lim), lim)

@@ -84,7 +84,14 @@ class OperatingRange:
     slope: float = 0.0  # mean slope of the ascending branch over ``command``, um per command unit
     direction: int = 1  # +1: the output rises with the command over ``command``; -1: it falls
     sub_range: bool = False  # ``command`` is the monotone part of a fitted range that is not
+    loop_output: tuple[float, float] = (0.0, 0.0)  # the range of the loop over ``fitted`` (um), overshoots included
+    planned: bool = False  # ``command`` is ``fitted`` again and ``output`` its loop's: a planned path runs there
     notes: list[str] = field(default_factory=list)
+
+    def plan_over_fitted(self) -> None:
+        """Work over the whole fitted range with a path planned over a known reference
+        (:mod:`hilbench.online.path_plan`): what it reaches is the loop's whole range."""
+        self.command, self.output, self.planned = self.fitted, self.loop_output, True
 
     @property
     def invertible(self) -> bool:
@@ -95,7 +102,7 @@ class OperatingRange:
         return {"fitted_input": list(self.fitted), "fitted_input_source": self.source,
                 "command": list(self.command), "reachable_output_um": list(self.output), "rising": self.rising,
                 "direction": "rising" if self.direction > 0 else "falling", "monotone_sub_range": self.sub_range,
-                "largest_fall_um": self.fall_um, "unit": unit}
+                "largest_fall_um": self.fall_um, "planned_path": self.planned, "unit": unit}
 
     def not_rising(self, spec: str, unit: str = "") -> str:
         """The refusal's message when the loop over the fitted range is not monotone and no sub-range
@@ -245,6 +252,7 @@ def operating_range(model: Any, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarra
     result = OperatingRange((a, b), source, (a, b), worst["output"], rises, max(worst["fall"], 0.0),
                             worst.get("from", (a, 0.0)), worst.get("to", (b, 0.0)), worst.get("branch", ""),
                             (float(limits[0]), float(limits[1])), worst["slope"], worst["direction"])
+    result.loop_output = worst["output"]
     if not rises:
         part = _monotone_sub_range(I, P, aux_ref, a, b, n)
         if part is not None:

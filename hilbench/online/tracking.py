@@ -35,6 +35,10 @@ the rig gives one), naming the range and the first sample outside it;
 ``allow_clip=True`` (CLI ``--allow-clip``) runs it clipped to that range instead, and the run's
 ``reference_clipped`` attribute (JSON: ``reference_clipped``) says how many samples were clipped and
 the reference's original range; the ``reference`` channel holds what the loop was asked to track.
+Where the model's loop turns over in its fitted range and the reference leaves the monotone part's
+reach, the commands are a path planned over the whole reference (:mod:`hilbench.online.path_plan`,
+decision 0118) after the full-range cycle and an approach; a reference the model itself cannot
+follow on any such path is refused too.
 Every run reports its health (:mod:`hilbench.online.health`: samples at a limit, slew-limited
 samples, error against the model's own): ``TrackResult.health``, the JSON's ``health`` object and
 the run's ``health`` attribute.
@@ -278,12 +282,53 @@ def _open_rig(rig: Any) -> Any:
 def _drive(rig: Any, comp: Compensator, target: float, hold: int = 0) -> None:
     """Move the rig to ``target`` at its slew limit through its safety path (unrecorded), hold it there
     ``hold`` samples, and feed the same applied commands to the compensator's model memory."""
-    commands = np.concatenate([ramp(rig.last_applied, target, rig.max_step), np.full(max(hold, 0), target)])
+    _play(rig, comp, np.concatenate([ramp(rig.last_applied, target, rig.max_step), np.full(max(hold, 0), target)]))
+
+
+def _play(rig: Any, comp: Compensator, commands: np.ndarray) -> None:
+    """Apply ``commands`` (unrecorded) through the rig's safety path and feed what was applied to the
+    compensator's model memory."""
     if commands.shape[0] == 0:
         return
-    applied = rig.apply(commands)
+    applied = rig.apply(np.ascontiguousarray(commands, dtype=np.float64))
     measured = rig.measure(applied)
     comp.precondition(applied, {k: v for k, v in measured.items() if k in comp.channels})
+
+
+def _needs_plan(ref: np.ndarray, comp: Compensator) -> bool:
+    """Whether the reference needs a planned path: the static map turns over in its fitted range (the
+    general inverse on its monotone part, or on none) and the reference leaves that part's reach by
+    more than the model's validation rmse."""
+    r = comp.range
+    if comp.kind != "general" or r.rising:
+        return False
+    if not r.invertible:
+        return True
+    finite = ref[np.isfinite(ref)]
+    if finite.size == 0:
+        return False
+    tolerance = min(model_validation_metric(comp.model, "rmse")[0] or 0.0, FALL_TOLERANCE * (r.output[1] - r.output[0]))
+    return bool(float(np.min(finite)) < r.output[0] - tolerance or float(np.max(finite)) > r.output[1] + tolerance)
+
+
+def _refuse_a_missed_plan(comp: Compensator, error: np.ndarray, fs: float, allow_clip: bool) -> None:
+    """Refuse (before the rig moves) a planned path along which the model itself misses the reference
+    by more rms than its validation rmse: the reference asks for what no path through the model's
+    loop gives, and the run would track at least that much worse than the model can (``allow_clip``
+    runs it, said in the notes). Where the rms holds, the largest miss is in the notes."""
+    val = model_validation_metric(comp.model, "rmse")[0] or 0.0
+    miss = np.abs(error)
+    rms = float(np.sqrt(np.mean(error ** 2))) if error.size else 0.0
+    if rms <= val:
+        return
+    worst = int(np.argmax(miss))
+    line = (f"no command path through the loop of {comp.model.spec!r} follows this reference: planned over the "
+            f"fitted [{comp.range.fitted[0]:.4g}, {comp.range.fitted[1]:.4g}] {comp.unit}, the model misses it by "
+            f"{rms:.3g} um rms, more than its validation rmse {val:.3g} um, and by {miss[worst]:.3g} um at sample "
+            f"{worst} (t = {worst / fs:.6g} s)").replace("  ", " ")
+    if not allow_clip:
+        raise UserError(line, hint="slow the reference or keep it inside the loop, or --allow-clip to run it anyway")
+    comp.notes.append(line + " (--allow-clip: run anyway)")
 
 
 #: the hold before a run: windows of this many seconds (at least SETTLE_MIN_WINDOW samples) ...
@@ -389,10 +434,24 @@ def track(
     act = rig.actuator
     span = float(np.ptp(ref[np.isfinite(ref)])) if np.any(np.isfinite(ref)) else 1.0
     comp = Compensator(model, fs, (act.min, act.max), method=method, gain=gain, iterations=iterations,
-                       feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit)
+                       feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit,
+                       plannable=preview and not online)
+    # a map that turns over in its fitted range: the monotone part serves a reference inside its reach;
+    # one beyond it runs on a path planned over the whole fitted range (hilbench.online.path_plan)
+    planned = _needs_plan(ref, comp) and preview and not online
+    if planned:
+        comp.range.plan_over_fitted()
     sensor = rig.config.sensor("output") if hasattr(rig, "config") else None
     ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
     targets = comp.enable_preview(ref) if preview else ref
+    lead_in = np.zeros(0)
+    approach = np.zeros(0)
+    if planned:
+        a, b = comp.range.fitted
+        lead_in = np.concatenate([ramp(rig.last_applied, a, rig.max_step), ramp(a, b, rig.max_step)])
+        aux_plan = _first_aux(rig, comp) if comp.channels else None
+        approach, error = comp.plan_path(targets, rig.max_step, aux_plan, lead_in)
+        _refuse_a_missed_plan(comp, error, fs, allow_clip)
     comp.CX[S_TARGET] = targets[0]  # what the first command (peeked below) is for
     plant = getattr(rig.lockstep, "plant", None)
     on_devices = plant is None or not hasattr(plant, "step_arrays")
@@ -407,7 +466,12 @@ def track(
         from hilbench.runners.rate_check import require_rate
 
         trips = require_rate(rig).describe()
-    if precondition:
+    if planned:
+        # the planned path starts from the full-range cycle it was planned after, then its approach
+        _drive(rig, comp, comp.range.fitted[0])
+        _drive(rig, comp, comp.range.fitted[1])
+        _play(rig, comp, approach)
+    elif precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
         if comp.range.sub_range:

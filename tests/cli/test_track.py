@@ -198,11 +198,12 @@ def test_track_reports_health_and_strict_passes_a_healthy_run(fitted: tuple[Path
     assert "operating range" in text.output and "reachable output" in text.output
 
 
-def test_track_refuses_a_reference_beyond_the_monotone_part_of_a_figure_eight(tmp_path: Path) -> None:
-    """gmm-issf-duhem as simulated loops as a figure eight over +-6 A: duhem-d is inverted only on the
-    part of that range where its loop is monotone, and 80 % of the recorded output, far beyond what
-    that part reaches, is refused in one line naming it and the fitted range (main named the rig's
-    +-6.5 A), before anything moves."""
+def test_track_runs_a_figure_eight_on_a_planned_path_and_refuses_beyond_its_loop(tmp_path: Path) -> None:
+    """gmm-issf-duhem as simulated loops as a figure eight over +-6 A. 80 % of the recorded output lies
+    far beyond the part of that range where duhem-d's loop is monotone: refused on main (naming that
+    part), it now runs on a path planned over the whole reference, said in a note, within the model's
+    own error (decision 0118). A reference beyond the whole loop is refused in one line naming the
+    reachable range, before anything moves."""
     runner = CliRunner()
     sweep = runner.invoke(app, ["sweep", "gmm-issf-duhem", "-e", "sine:amplitude=6,frequency_hz=1,cycles=2",
                                 "-o", str(tmp_path / "gmm.h5"), "--json", "--quiet"])
@@ -213,12 +214,16 @@ def test_track_refuses_a_reference_beyond_the_monotone_part_of_a_figure_eight(tm
     out = tmp_path / "t.h5"
     result = runner.invoke(app, ["track", "gmm-issf-duhem", "--model", str(tmp_path / "d.json"), "-o", str(out),
                                  "--reference", "sine:amplitude=53,offset=-60,frequency_hz=1,cycles=2"])
-    assert result.exit_code == 2, result.output
-    lines = result.output.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in result.output
-    assert "fitted [-6, 6] A where one output has one command" in lines[0] and "6.5" not in lines[0]
-    assert "reachable output range of 'duhem-d'" in lines[0]
-    assert not out.exists()
+    assert result.exit_code == 0, result.output
+    assert "path planned over the whole reference" in result.output and "- ok" in result.output
+    beyond = tmp_path / "beyond.h5"
+    refused = runner.invoke(app, ["track", "gmm-issf-duhem", "--model", str(tmp_path / "d.json"), "-o", str(beyond),
+                                  "--reference", "sine:amplitude=80,offset=-60,frequency_hz=1,cycles=2"])
+    assert refused.exit_code == 2, refused.output
+    lines = refused.output.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in refused.output
+    assert "reachable output range of 'duhem-d'" in lines[0] and "6.5" not in lines[0]
+    assert not beyond.exists()
 
 
 def test_track_designs_the_feedback_and_states_its_margins(fitted: tuple[Path, Path], tmp_path: Path) -> None:
