@@ -147,6 +147,25 @@ def _overshoot(I: np.ndarray, P: np.ndarray, X: np.ndarray, S: np.ndarray, aux: 
 
 
 @njit(cache=True, _nrt=False)
+def _monotone_end(I: np.ndarray, P: np.ndarray, X: np.ndarray, S: np.ndarray, aux: np.ndarray, u: float, y0: float,
+                  step: float, sense: float, lo: float, hi: float, steps: int) -> float:
+    """From ``u`` (output ``y0``) in steps of ``step`` (signed), at most ``steps`` of them: the last
+    command up to which the output keeps moving with ``sense`` (times the step's sign)."""
+    end = u
+    prev = y0
+    way = sense if step > 0.0 else -sense
+    for _ in range(steps):
+        v = min(max(end + step, lo), hi)
+        if v == end:
+            break
+        y = _probe(I, P, X, S, v, aux)
+        if way * (y - prev) < 0.0:
+            break
+        end, prev = v, y
+    return end
+
+
+@njit(cache=True, _nrt=False)
 def _stretch(I: np.ndarray, P: np.ndarray, X: np.ndarray, S: np.ndarray, aux: np.ndarray, u: float, d: float,
              h: float, lo: float, hi: float, steps: int) -> tuple[float, float, float]:
     """The stretch around ``u`` on which the output (from memory ``X``) is monotone, searched
@@ -164,26 +183,8 @@ def _stretch(I: np.ndarray, P: np.ndarray, X: np.ndarray, S: np.ndarray, aux: np
         uf, yf = (ua, ya) if d > 0.0 else (ub, yb)
     slope = (yf - y0) / (uf - u) if uf != u else 0.0
     sense = 1.0 if slope > 0.0 else (-1.0 if slope < 0.0 else d)  # flat here: the way the command moves
-    top = u
-    prev = y0
-    for _ in range(steps):
-        v = min(top + h, hi)
-        if v == top:
-            break
-        y = _probe(I, P, X, S, v, aux)
-        if sense * (y - prev) < 0.0:
-            break
-        top, prev = v, y
-    bottom = u
-    prev = y0
-    for _ in range(steps):
-        v = max(bottom - h, lo)
-        if v == bottom:
-            break
-        y = _probe(I, P, X, S, v, aux)
-        if sense * (prev - y) < 0.0:
-            break
-        bottom, prev = v, y
+    top = _monotone_end(I, P, X, S, aux, u, y0, h, sense, lo, hi, steps)
+    bottom = _monotone_end(I, P, X, S, aux, u, y0, -h, sense, lo, hi, steps)
     return bottom, top, slope
 
 
