@@ -274,13 +274,25 @@ def watch(
     """Follow a recording while it is written: the running run's traces, its input-output loop and the
     loop's lateness, refreshed a few times a second, in a page on 127.0.0.1 (or --text). A reader in
     its own process: the run never waits for it. Ends by itself when the run does."""
+    from hilbench.errors import DataError
     from hilbench.recording.hdf5 import check_recording
     from hilbench.report.live_view import Follower, serve, text_line
 
     deadline = time.monotonic() + wait
     while not file.exists() and time.monotonic() < deadline:
         time.sleep(0.2)
-    check_recording(file)
+    while True:
+        try:
+            check_recording(file)
+            break
+        except DataError as exc:
+            # the writer has created the file and holds HDF5's lock until its SWMR mode starts (after
+            # the root attributes): a lock is waited out like a file not there yet, anything else is not
+            cause = exc.__cause__
+            locked = isinstance(cause, BlockingIOError) or "lock" in str(cause)
+            if not locked or time.monotonic() >= deadline:
+                raise
+            time.sleep(0.2)
     follower = Follower(file, window_s=window, linger_s=linger, wait_s=max(0.0, deadline - time.monotonic()))
     try:
         if text:

@@ -57,6 +57,35 @@ def test_watch_on_a_file_that_is_not_a_recording_is_one_line_exit_2(tmp_path: Pa
     assert done.returncode == 2 and len(done.stderr.strip().splitlines()) <= 2 and str(bad) in done.stderr
 
 
+def test_watch_waits_out_the_lock_of_a_file_being_created(tmp_path: Path) -> None:
+    """A recording's writer holds HDF5's lock while it creates the file and writes its root (and while
+    it adds a run), until its SWMR mode starts. CI met that window: the viewer, started beside the
+    sweep, refused the file at once ('not a readable HDF5 file (BlockingIOError)'). A lock is now
+    waited out like a missing file: here a process creates a recording's root as the writer does and
+    holds it for 10 s (longer than the viewer's start); the viewer opens it once released and waits
+    for a run."""
+    held = tmp_path / "held.h5"
+    holder = subprocess.Popen([sys.executable, "-c",
+                               "import time, h5py\n"
+                               "from hilbench.recording.hdf5 import FORMAT, FORMAT_VERSION\n"
+                               f"f = h5py.File({str(held)!r}, 'w', libver='latest')\n"
+                               "f.attrs['format'] = FORMAT\n"
+                               "f.attrs['format_version'] = FORMAT_VERSION\n"
+                               "f.create_group('runs')\n"
+                               "f.flush()\n"
+                               "print('open', flush=True)\n"
+                               "time.sleep(10.0)\n"
+                               "f.close()\n"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "open"
+        done = subprocess.run([sys.executable, "-m", "hilbench.cli", "watch", str(held), "--text", "--wait", "20"],
+                              capture_output=True, text=True, timeout=120)
+    finally:
+        holder.wait(timeout=30)
+    assert done.returncode == 0, done.stderr
+    assert "no run began" in done.stdout and "BlockingIOError" not in done.stderr
+
+
 def _render(browser: str, url: str, profile: Path, screenshot: Path | None = None) -> str:
     flags = [browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
              "--disable-component-update", "--disable-sync", "--no-first-run", f"--user-data-dir={profile}",
