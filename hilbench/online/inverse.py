@@ -159,6 +159,20 @@ def _polynomial(model: Any, n_ops: int) -> np.ndarray:
     return coef[: deg + 1]
 
 
+def _approach_targets(y0: float, targets: np.ndarray, reach: tuple[float, float], leg: int, hold: int) -> np.ndarray:
+    """The targets (um) that bring a planned run to its first target the way the run leaves it: from
+    ``y0`` to half the reference's span (at least a tenth of the ``reach``) beyond the first target,
+    on the side the reference does not head for, then to that target (two half-cosine legs of ``leg``
+    samples), held ``hold`` samples."""
+    t0 = float(targets[0])
+    moving = np.flatnonzero(np.diff(targets) != 0.0)
+    first = 1.0 if moving.size == 0 else float(np.sign(targets[moving[0] + 1] - t0))
+    span = float(np.ptp(targets))
+    far = float(np.clip(t0 - first * max(0.5 * span, 0.1 * (reach[1] - reach[0])), reach[0], reach[1]))
+    ease = 0.5 * (1.0 - np.cos(np.pi * np.arange(leg) / (leg - 1)))
+    return np.concatenate([y0 + (far - y0) * ease, far + (t0 - far) * ease, np.full(hold, t0)])
+
+
 #: effects the analytic kinds cover (dynamics and delay are handled outside the static inverse)
 _OUTSIDE_STATIC = ("dynamics", "delay")
 
@@ -682,7 +696,8 @@ class Compensator:
         """Plan the commands over the whole reference's ``targets`` (um; the preview's) on a static map
         that is not monotone (:mod:`hilbench.online.path_plan`), from the model's memory after the
         commands ``lead_in`` (what the rig goes through first: the full-range cycle), and install the
-        run's part: feed-forward then replays it and feedback solves inside its monotone stretches.
+        run's part: feed-forward then replays it, and feedback adds its correction over the model's
+        slope along it, inside its monotone stretches (:func:`hilbench.online.path_plan.feedback_samples`).
 
         The run's first target may need an overshoot to be reached (a reference starting at its
         extremum), so an *approach* is planned before it: from where the lead-in leaves the output to
@@ -709,20 +724,15 @@ class Compensator:
         y0 = float(K.model_step_call(self.I, self.P, X.copy(), u0, row))
         step = max_step if math.isfinite(max_step) and max_step > 0 else b - a
         leg = max(math.ceil(self.APPROACH_LEG_S * self.fs), math.ceil(2.0 * (b - a) / step), 2)
-        moving = np.flatnonzero(np.diff(t) != 0.0)
-        first = 1.0 if moving.size == 0 else float(np.sign(t[moving[0] + 1] - t[0]))
-        span = float(np.ptp(t)) if t.size else 0.0
-        far = float(np.clip(t[0] - first * max(0.5 * span, 0.1 * (y_hi - y_lo)), y_lo, y_hi))
-        ease = 0.5 * (1.0 - np.cos(np.pi * np.arange(leg) / (leg - 1)))
-        approach = np.concatenate([y0 + (far - y0) * ease, far + (t[0] - far) * ease,
-                                   np.full(max(int(self.APPROACH_HOLD_S * self.fs), 1), t[0])])
-        plan = PP.plan_path(self.I, self.P, X, row, u0, np.concatenate([approach, t]), (a, b), step, y_hi - y_lo)
+        approach = _approach_targets(y0, t, (y_lo, y_hi), leg, max(int(self.APPROACH_HOLD_S * self.fs), 1))
+        whole = np.concatenate([approach, t])
+        plan = PP.plan_path(self.I, self.P, X, row, u0, whole, (a, b), step, y_hi - y_lo)
         na = approach.size
         run = slice(na, None)
         error = plan.output[run] - t
         n = t.size
         o = self.CP.size
-        feedback_here = PP.feedback_samples(plan, np.concatenate([approach, t]), (a, b))[run]
+        feedback_here = PP.feedback_samples(plan, whole, (a, b))[run]
         self.CP = np.concatenate([self.CP, plan.command[run], plan.stretch_lo[run], plan.stretch_hi[run],
                                   plan.slope[run], plan.direction[run], feedback_here.astype(np.float64)])
         # feedback's correction is divided by the model's slope along the plan, floored at a quarter of

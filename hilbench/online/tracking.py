@@ -307,8 +307,16 @@ def _needs_plan(ref: np.ndarray, comp: Compensator) -> bool:
     finite = ref[np.isfinite(ref)]
     if finite.size == 0:
         return False
-    tolerance = min(model_validation_metric(comp.model, "rmse")[0] or 0.0, FALL_TOLERANCE * (r.output[1] - r.output[0]))
+    tolerance = _reach_tolerance(comp, *r.output)
     return bool(float(np.min(finite)) < r.output[0] - tolerance or float(np.max(finite)) > r.output[1] + tolerance)
+
+
+def _reach_tolerance(comp: Compensator, lo: float, hi: float) -> float:
+    """How far (um) a reference may leave the reach ``[lo, hi]`` and still run as asked: the model's
+    validation rmse (the recorded extremes are read with the sensor's noise and the loop's overshoot),
+    never more than the share of the span a branch may fall (:data:`FALL_TOLERANCE`): a poor model's
+    error says nothing about where the rig turns."""
+    return min(model_validation_metric(comp.model, "rmse")[0] or 0.0, FALL_TOLERANCE * (hi - lo))
 
 
 def _refuse_a_missed_plan(comp: Compensator, error: np.ndarray, fs: float, allow_clip: bool) -> None:
@@ -467,10 +475,8 @@ def track(
 
         trips = require_rate(rig).describe()
     if planned:
-        # the planned path starts from the full-range cycle it was planned after, then its approach
-        _drive(rig, comp, comp.range.fitted[0])
-        _drive(rig, comp, comp.range.fitted[1])
-        _play(rig, comp, approach)
+        # the full-range cycle the path was planned after, then its approach: the very commands planned
+        _play(rig, comp, np.concatenate([lead_in, approach]))
     elif precondition:
         # up to the top of the range the model was fitted on (and the rig allows): every operator
         # that the model knows switches, so model and actuator memories agree; then down to the start
@@ -566,12 +572,9 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     outside = finite & ((ref < lo) | (ref > hi))
     if not np.any(outside):
         return ref, None
-    # the reach is the model's static loop, known only as well as the model: a reference that leaves
-    # it by no more than the model's validation rmse (the recorded extremes, read with the sensor's
-    # noise and the loop's overshoot) is run as asked, and says so; the rig may well reach it. Never
-    # by more than the share of the span a branch may fall (FALL_TOLERANCE): a poor model's error
-    # says nothing about where the rig turns
-    tolerance = min(model_validation_metric(comp.model, "rmse")[0] or 0.0, FALL_TOLERANCE * (hi - lo))
+    # the reach is the model's static loop, known only as well as the model: a reference just beyond
+    # it runs as asked, and says so; the rig may well reach it
+    tolerance = _reach_tolerance(comp, lo, hi)
     beyond = float(np.max(np.maximum(ref[outside] - hi, lo - ref[outside])))
     measured_there = measurable is None or (float(np.min(ref[finite])) >= float(measurable[0])
                                             and float(np.max(ref[finite])) <= float(measurable[1]))
