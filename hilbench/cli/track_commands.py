@@ -40,7 +40,8 @@ def track(
                                             help="Figure: tracking, error, desired vs actual."),
     label: str = typer.Option("track", "--label", help="Run label in the recording."),
     allow_clip: bool = typer.Option(False, "--allow-clip", help="Run a reference that leaves the reachable output "
-                                    "range clipped to it (recorded in the run), instead of refusing it."),
+                                    "range clipped to it (recorded in the run), or one a planned path cannot "
+                                    "follow, instead of refusing it."),
     allow_late: bool = typer.Option(False, "--allow-late", help="On real devices, run even when their measured "
                                     "round trip cannot hold the rig's rate (timed before anything moves; the "
                                     "overruns are recorded)."),
@@ -53,7 +54,10 @@ def track(
 
     A configuration that cannot be stable (004 eq. 16 violated with no gain, PID gains that
     destabilise the identified loop), a model that cannot be inverted over its operating range and a reference
-    outside the reachable output range (unless --allow-clip) are refused before anything moves
+    outside the reachable output range (unless --allow-clip) are refused before anything moves. Where the
+    model's loop turns over in its fitted range (a figure eight), a reference beyond its monotone part
+    runs on a command path planned over the whole reference (reversing early so the overshoot lands on
+    each extremum; decision 0118), refused when the model itself cannot follow it
     (exit 2). The run's health (samples at a limit, slew-limited, error against the model's own) is
     reported; --strict makes a degraded run exit with status 3.
     """
