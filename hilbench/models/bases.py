@@ -205,13 +205,24 @@ class FPMPI(Component):
             self.params = [ShapeParam(f"wP_{i}", 0.0, -3.0, 3.0, doc=f"weight of u^{e:.3g} (000 eq. 5)")
                            for i, e in enumerate(self.constants["exponents"]) if e != 1.0]
 
-    def shaped(self, v: np.ndarray) -> np.ndarray:
-        vv = np.abs(v)
+    def shaped(self, v: np.ndarray, memo: dict[Any, Any] | None = None) -> np.ndarray:
+        """sum w_P,i sign(v) |v|^e_i. The powers depend on the input alone, not on the weights the
+        shape search moves: with ``memo`` (the signals' :attr:`Signals.memo`, which holds ``v``'s)
+        they are kept there, so a search computes them once per run, not at every evaluation (the
+        same numbers: only the weighted sum is done again)."""
+        exponents = self.constants["exponents"]
+        key = ("fpmpi-powers", id(self), tuple(exponents))
+        powers = None if memo is None else memo.get(key)
+        if powers is None:
+            vv = np.abs(v)
+            powers = [np.sign(v) * vv**e if e != 0.0 else None for e in exponents]
+            if memo is not None:
+                memo[key] = powers
         out = np.zeros_like(v)
         params = iter(self.params)
-        for e in self.constants["exponents"]:
+        for e, power in zip(exponents, powers):
             w = 1.0 if e == 1.0 else next(params).value
-            out += w * (np.sign(v) * vv**e if e != 0.0 else 1.0)
+            out += w * (power if e != 0.0 else 1.0)
         return out
 
     def finalize(self, s: Signals) -> None:
@@ -221,7 +232,7 @@ class FPMPI(Component):
         return {"ops": np.zeros(int(self.constants["n"]))}
 
     def columns(self, s: Signals, state: dict[str, Any], previous: list[Columns]) -> Columns:
-        x = self.shaped(s.v)
+        x = self.shaped(s.v, s.memo)
         n_ops = int(self.constants["n"])
         # thresholds follow eq. 3 on the shaped input's range seen in training
         span = float(self.constants.get("shaped_max", 0.0)) or float(np.max(np.abs(x))) or 1.0
