@@ -163,6 +163,7 @@ class _Problem:
         self._static_key: tuple[float, ...] | None = None
         self._static_blocks: list[Any] = []
         self._columns = _ColumnCache(model, self.runs)
+        self._joined: tuple[tuple[float, ...], Any] | None = None  # see _training_signals
 
     # theta <-> search variables (log scale where declared)
     def to_x(self, theta: np.ndarray) -> np.ndarray:
@@ -203,7 +204,7 @@ class _Problem:
             for p, value in zip(self.params, theta):
                 p.value = float(value)
             # constants that follow the shape (FPMPI thresholds) are those of the final model
-            self.model.finalize(self.train_parts)
+            self.model.finalize(self.train_parts, self._training_signals())
         self.evaluations += 1
         if self.on_evaluation is not None:
             self.on_evaluation()
@@ -211,6 +212,16 @@ class _Problem:
         if not np.all(np.isfinite(A)):
             return WeightSolution(np.zeros(A.shape[1]), math.inf), A, names
         return solve_weights(A, self.y, lower, upper, self.model.weight_constraints(names)), A, names
+
+    def _training_signals(self) -> Any:
+        """The training parts' joined signals (:meth:`Model.joined_signals`), kept while the drive's
+        shaping holds (they depend on no other searched parameter): what the components keep with
+        them (:attr:`Signals.memo`, FPMPI's powers of the input) is computed once, not per evaluation."""
+        shaping = self.model.input_shaping()
+        drive = tuple(p.value for p in shaping.shape()) if shaping is not None else ()
+        if self._joined is None or self._joined[0] != drive:
+            self._joined = (drive, self.model.joined_signals(self.train_parts))
+        return self._joined[1]
 
     def residual(self, x: np.ndarray) -> np.ndarray:
         sol, A, _ = self.solve(self.to_theta(x))

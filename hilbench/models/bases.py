@@ -226,7 +226,7 @@ class FPMPI(Component):
         return out
 
     def finalize(self, s: Signals) -> None:
-        self.constants["shaped_max"] = float(np.max(np.abs(self.shaped(s.v)))) or 1.0
+        self.constants["shaped_max"] = float(np.max(np.abs(self.shaped(s.v, s.memo)))) or 1.0
 
     def new_state(self) -> dict[str, Any]:
         return {"ops": np.zeros(int(self.constants["n"]))}

@@ -154,6 +154,10 @@ class Model:
             return x
         return MK.delay_rows(np.ascontiguousarray(x), delay.param("seconds") * fs)
 
+    def joined_signals(self, runs: list[RunData]) -> Signals:
+        """The signals :meth:`finalize` computes its constants from: the runs joined."""
+        return self._joined_signals(runs, np.concatenate([r.input for r in runs]))
+
     def _joined_signals(self, runs: list[RunData], u: np.ndarray) -> Signals:
         """The training runs joined, each run's first rate zero (nothing is measured across a junction)."""
         joined = RunData(u, None, {c: np.concatenate([r.aux[c] for r in runs]) for c in self.aux_channels},
@@ -182,10 +186,12 @@ class Model:
             c.prepare(signals)
             c.fix_from_options()
 
-    def finalize(self, runs: list[RunData]) -> None:
-        """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds)."""
-        u = np.concatenate([r.input for r in runs])
-        signals = self._joined_signals(runs, u)
+    def finalize(self, runs: list[RunData], signals: Signals | None = None) -> None:
+        """Freeze data-dependent constants after the shape search (e.g. FPMPI thresholds).
+        ``signals``: the runs' :meth:`joined_signals`, when the caller keeps them (a shape search:
+        they change only with the drive's shaping)."""
+        if signals is None:
+            signals = self.joined_signals(runs)
         for c in self.components:
             c.finalize(signals)
 
