@@ -177,6 +177,23 @@ def _approach_targets(y0: float, targets: np.ndarray, reach: tuple[float, float]
 _OUTSIDE_STATIC = ("dynamics", "delay")
 
 
+def _range_aux(model: Any, channels: list[str], values: dict[str, float] | None) -> tuple[np.ndarray, str]:
+    """The aux channels' values the operating range is traced at, and how the notes name them: each
+    channel's value in ``values`` (read on the rig before the run) where it is there and finite, else
+    the model's reference value for it."""
+    if not channels:
+        return np.zeros(1), "no aux channels"
+    refs = [float(model.effect(c).constants["reference"]) for c in channels]
+    read = [None if values is None or c not in values or not math.isfinite(float(values[c])) else float(values[c])
+            for c in channels]
+    used = [r if v is None else v for r, v in zip(refs, read, strict=True)]
+    if all(v is None for v in read):
+        return np.array(used), "aux channels at their references"
+    parts = [f"{c} {u:.4g} ({'read before the run' if v is not None else 'its reference'}; the model's reference {r:.4g})"
+             for c, u, v, r in zip(channels, used, read, refs, strict=True)]
+    return np.array(used), "aux channels " + ", ".join(parts)
+
+
 class Compensator:
     """An inverse-model compensator for a fitted model, with optional PID feedback and online
     adaptation; see the module docstring for the kinds.
@@ -206,6 +223,7 @@ class Compensator:
         max_iterations: int = 60,
         unit: str = "",
         plannable: bool = False,
+        aux_values: dict[str, float] | None = None,
     ):
 
         if model.weights is None:
@@ -238,8 +256,11 @@ class Compensator:
         self.channels = list(compiled.channels)
         self.unit = unit
         us = float(model.norm["u_scale"])
-        # what the model knows and reaches: the static map over the fitted inputs (see operating_range)
-        aux_ref = np.array([float(model.effect(c).constants["reference"]) for c in self.channels] or [0.0])
+        # what the model knows and reaches: the static map over the fitted inputs (see operating_range),
+        # at the aux channels' values read before the run where given (a load or a temperature moves
+        # the whole loop: judged at the model's reference values, a reference the rig reaches now is
+        # refused, or one it does not is run), else at the model's references
+        aux_ref, self._aux_note = _range_aux(model, self.channels, aux_values)
         self.range = operating_range(model, I, P, aux_ref, (lo, hi), sample_rate_hz=self.fs)
 
         extra = [e.name for e in model.effects if e.name not in _OUTSIDE_STATIC and e.name != "asymmetry"]
@@ -597,8 +618,8 @@ class Compensator:
         self.notes.append(
             f"fitted input range [{r.fitted[0]:.4g}, {r.fitted[1]:.4g}] {u} ({r.source}); operating range "
             f"[{r.command[0]:.4g}, {r.command[1]:.4g}] {u}; reachable output [{r.output[0]:.4g}, {r.output[1]:.4g}] um: "
-            "the static map's major loop over the operating range (dynamics and delay off, aux channels at their "
-            "references)".replace("  ", " "))
+            f"the static map's major loop over the operating range (dynamics and delay off, {self._aux_note})"
+            .replace("  ", " "))
         self.notes.extend(r.notes)
         if r.sub_range:
             self.notes.append(r.sub_range_note(u))

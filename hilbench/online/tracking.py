@@ -443,7 +443,7 @@ def track(
     span = float(np.ptp(ref[np.isfinite(ref)])) if np.any(np.isfinite(ref)) else 1.0
     comp = Compensator(model, fs, (act.min, act.max), method=method, gain=gain, iterations=iterations,
                        feedback=feedback, online=online, reference_span=max(span, 1e-9), unit=act.unit,
-                       plannable=preview and not online)
+                       plannable=preview and not online, aux_values=_aux_now(rig, model))
     # a map that turns over in its fitted range: the monotone part serves a reference inside its reach;
     # one beyond it runs on a path planned over the whole fitted range (hilbench.online.path_plan)
     planned = _needs_plan(ref, comp) and preview and not online
@@ -606,6 +606,17 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     comp.notes.append(f"reference clipped to the reachable [{lo:.4g}, {hi:.4g}] um: {count} of {ref.size} samples "
                       f"(--allow-clip)")
     return clipped, info
+
+
+def _aux_now(rig: Any, model: Any) -> dict[str, float] | None:
+    """The model's aux channels as the rig reads them now, before anything moves (one unrecorded sample
+    held at the last command): what the reachable range is judged at. None for a model without aux
+    channels; a channel the rig does not read is left out (the range takes the model's reference)."""
+    wanted = list(model.aux_channels)
+    if not wanted:
+        return None
+    measured = rig.measure(rig.apply(np.full(1, rig.last_applied)))
+    return {k: float(measured[k][0]) for k in wanted if k in measured}
 
 
 def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:

@@ -316,3 +316,34 @@ def test_a_reference_beyond_the_reach_by_less_than_the_models_error_runs(tmp_pat
     assert near.reference_clipped is None
     with pytest.raises(UserError, match="reachable output range"):
         track(rig, model, _sine(lo + 0.2 * (hi - lo), hi + 10.0 * rmse))
+
+
+def test_the_reach_is_judged_at_the_aux_values_read_before_the_run() -> None:
+    """A temperature (or load) term moves the whole loop: the reachable output is the static loop at
+    the values the rig reads before the run, not at the model's reference values, and the notes say
+    which were used. Random gains and temperatures; the loop traced directly at the read value is the
+    yardstick."""
+    from hilbench.models import Model
+    from hilbench.models.components import ShapeParam
+
+    rng = np.random.default_rng(58)
+    for _ in range(4):
+        model = Model("pi(n=4)+temperature")
+        model.norm = {"u_scale": 1.0}
+        model.sample_rate_hz = 1000.0
+        model.base.constants["thresholds"] = [0.0, 0.1, 0.3, 0.5]
+        (temp,) = model.effects
+        temp.constants.update({"reference": 25.0, "scale": 5.0})
+        temp.params = [ShapeParam("g", float(rng.uniform(0.05, 0.3)), -0.5, 0.5, "per channel std")]
+        model.weights = np.array([float(rng.uniform(-0.5, 0.5)), 1.0, 0.5, 0.3, 0.2, float(rng.uniform(-1.0, 1.0))])
+        now = float(rng.uniform(30.0, 45.0))
+        at_ref = Compensator(model, 1000.0, (-1.0, 1.0), unit="V")
+        at_now = Compensator(model, 1000.0, (-1.0, 1.0), unit="V", aux_values={"temperature": now})
+        I, P = at_now.I, at_now.P
+        _, up, down = static_major_loop(I, P, np.array([now]), *at_now.range.command, 400)
+        expected = (float(min(up.min(), down.min())), float(max(up.max(), down.max())))
+        assert at_now.range.output == pytest.approx(expected, abs=1e-9)
+        # the loop at the reference temperature is another one: judged there, the reach would be wrong
+        assert abs(at_now.range.output[1] - at_ref.range.output[1]) > 0.01 * np.ptp(at_ref.range.output)
+        assert any(f"temperature {now:.4g} (read before the run" in n for n in at_now.notes)
+        assert any("aux channels at their references" in n for n in at_ref.notes)
