@@ -398,8 +398,8 @@ def main(argv: list[str] | None = None) -> None:
                     help="the seeded regressions of benchmarks/diagnosis_regressions.py (those the test suite "
                          "leaves out too); the JSON's 'regressions_missed' lists the ones not hit")
     ap.add_argument("--slow-pair", type=str, default=None,
-                    help="cases of diagnosis_cases.SLOW_PAIRS (creep+warming, creep+load-staircase, warming) "
-                         "drawn per seed instead of draw_case's")
+                    help="cases of diagnosis_cases.SLOW_PAIRS (creep+warming, creep+load-staircase, "
+                         "creep+placed-weight, warming) drawn per seed instead of draw_case's")
     ap.add_argument("--suite", choices=("classic", "widened"), default="classic",
                     help="diagnosis_cases suite: classic (the pinned seeds' draws) or widened (issue 62: Preisach "
                          "and Bouc-Wen bases, more soft knees, creep with a slow channel)")
