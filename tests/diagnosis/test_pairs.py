@@ -10,12 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis.diagnose import diagnose
-from hilbench.diagnosis.pairs import (
-    delay_partners,
-    pairs_to_try,
-    should_try,
-    with_pairs,
-)
+from hilbench.diagnosis.pairs import delay_partners, pairs_to_try, should_try, with_pairs
 from hilbench.diagnosis.refit import added_parts, effect_specs, spec_parts
 from hilbench.diagnosis.verdict import Candidate
 from hilbench.recording.hdf5 import RecordingWriter
