@@ -51,7 +51,7 @@ from typing import Any
 from hilbench import progress
 from hilbench.diagnosis.base_check import alternatives, finer_base_check, fit_alternative, wrong_base
 from hilbench.diagnosis.base_polish import polished_base, shared_base_shape
-from hilbench.diagnosis.pairs import pair_candidates, with_pairs
+from hilbench.diagnosis.pairs import pair_candidates
 from hilbench.diagnosis.reach import restricted, within_reach
 from hilbench.diagnosis.refit import fit_effect
 from hilbench.diagnosis.replication import replicate
@@ -145,8 +145,7 @@ def _diagnose_once(paths: Dataset, base: FitResult, kw: dict[str, Any], jobs: in
                                shared=paths.runs)
     # every significant refit on the best base shape any of them found (diagnosis/base_polish.py)
     cands = shared_base_shape(paths, base, cands, every, noise, kw, plans, jobs)
-    # overlapping effects, judged together (a pair may come back as one member alone, at a better optimum)
-    cands = with_pairs(cands, pair_candidates(paths, base, cands, every, noise, kw, jobs))
+    cands += pair_candidates(paths, base, cands, every, noise, kw, jobs)  # overlapping effects, judged together
     untestable = list(plan.untestable)
     # the hysteresis inside the mechanics, when the data show a resonance the drive excites (decision 0103)
     structure = structure_check(paths, base, cands, noise, kw, untestable)

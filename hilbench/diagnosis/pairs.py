@@ -32,10 +32,10 @@ from hilbench.diagnosis import thresholds as T
 from hilbench.diagnosis.evidence import EVIDENCE_CHECKS
 from hilbench.diagnosis.refit import added_parts
 from hilbench.diagnosis.rows import ResidualRows
-from hilbench.diagnosis.verdict import Candidate, judge, relative_gain, verdict
+from hilbench.diagnosis.verdict import Candidate, judge, relative_gain
 from hilbench.diagnosis.workers import run_tasks
 from hilbench.identify.dataset import Dataset
-from hilbench.identify.fitting import FitResult, fit
+from hilbench.identify.fitting import FitResult
 
 #: the checks of a single verdict that say whether its gain carried over to validation
 VALIDATION_CHECKS = ("gain_over_10pct", "train_and_validation_agree", "blocks_p_below_0.01")
@@ -148,34 +148,7 @@ def judge_pair(paths: Any, base: FitResult, a: Candidate, b: Candidate, rows: Re
     c.significant = all(checks.values())
     c.evidence.update({"pair": [a.effect, b.effect], "members": {m.effect: _member_json(m) for m in (a, b)},
                        "gain_over_best_single": over})
-    return _without_an_idle_member(paths, base, c, a, b, rows, noise, kw) if c.significant else c
-
-
-def _without_an_idle_member(paths: Any, base: FitResult, pair: Candidate, a: Candidate, b: Candidate,
-                            rows: ResidualRows, noise: float, kw: dict[str, Any]) -> Candidate:
-    """A significant pair whose joint fit found a better optimum of one member alone: each member
-    refitted without the other, started from the pair's fitted shape, and judged as a single. When
-    one is significant and the pair does not lower the validation rmse below it by MIN_GAIN (the
-    margin a pair must beat each single by), the other member added nothing but a way into that
-    optimum (a frequency gain's polynomial in a flat valley of its own search, which the pair with
-    a delay of 0.04 samples left at a point that validates), and the single is the candidate: the
-    better of the two when both are. Otherwise the pair stands."""
-    pair_v = pair.evidence["validation_rmse"][1]
-    kept: Candidate | None = None
-    for keep, idle in ((a, b), (b, a)):
-        warm = fit(paths, keep.spec, **{**kw, "start_from": pair.fitted.model})  # type: ignore[union-attr]
-        single = verdict(base, keep.effect, warm, rows, noise)
-        single_v = single.evidence["validation_rmse"][1]
-        if not single.significant or relative_gain(single_v, pair_v) > T.MIN_GAIN:
-            continue
-        if kept is None or single_v < kept.evidence["validation_rmse"][1]:
-            single.explanation += (f"; found through the pair {pair.effect}: refitted from the pair's shape without "
-                                   f"{idle.effect}, it validates at {single_v:.4g} against the pair's {pair_v:.4g} "
-                                   f"(the pair is not {100 * T.MIN_GAIN:.0f} % lower), so {idle.effect} adds nothing")
-            single.evidence["from_pair"] = {"pair": pair.effect, "dropped": idle.effect, "pair_validation_rmse": pair_v,
-                                            "cold_validation_rmse": keep.evidence["validation_rmse"][1]}
-            kept = single
-    return kept if kept is not None else pair
+    return c
 
 
 def pairs_to_try(cands: list[Candidate], base: FitResult, noise: float) -> list[list[Candidate]]:
@@ -207,20 +180,3 @@ def pair_candidates(paths: Dataset, base: FitResult, cands: list[Candidate], row
     pairs = pairs_to_try(cands, base, noise)
     return run_tasks([partial(judge_pair, paths, base, a, b, rows, noise, kw) for a, b in pairs], jobs,
                      shared=paths.runs)
-
-
-def with_pairs(cands: list[Candidate], judged: list[Candidate]) -> list[Candidate]:
-    """The candidates with the judged pairs added: a pair that came back as one member alone
-    (:func:`_without_an_idle_member`) takes that member's place when it validates lower than the
-    member's own refit, and is left out otherwise (the effect is listed once)."""
-    out = list(cands)
-    for c in judged:
-        if "from_pair" not in c.evidence:
-            out.append(c)
-            continue
-        at = next((k for k, o in enumerate(out) if o.effect == c.effect), None)
-        if at is None:
-            out.append(c)
-        elif c.evidence["validation_rmse"][1] < out[at].evidence["validation_rmse"][1]:
-            out[at] = c
-    return out

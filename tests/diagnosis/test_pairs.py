@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hilbench.diagnosis.diagnose import diagnose
-from hilbench.diagnosis.pairs import delay_partners, pairs_to_try, should_try, with_pairs
+from hilbench.diagnosis.pairs import delay_partners, pairs_to_try, should_try
 from hilbench.diagnosis.refit import added_parts, effect_specs, spec_parts
 from hilbench.diagnosis.verdict import Candidate
 from hilbench.recording.hdf5 import RecordingWriter
@@ -214,20 +214,3 @@ def test_pair_specs():
     assert effect_specs("pi", "creep(form=output)+load") == ["pi+creep(form=output)+load"]
     assert effect_specs("linear", "hysteresis+creep") == ["pi+creep"]
     assert effect_specs("linear", "duhem-d+creep") == ["duhem-d+creep"]
-
-
-def test_a_pair_that_came_back_as_one_member_takes_that_members_place():
-    """A significant pair whose member, refitted alone from the pair's shape, does as well comes back
-    as that single (``from_pair``): it replaces the member's own refit when it validates lower, is
-    left out when not, and the effect is listed once; a pair that stands is added."""
-    rate, delay, creep = _cand("rate-dependence", 0.2, 0.3, True), _cand("delay", 0.0, 0.05, False), \
-        _cand("creep", 0.05, 0.2, False, ("gain_over_10pct",))
-    warm = _cand("rate-dependence", 0.6, 0.5, True)
-    warm.evidence["from_pair"] = {"pair": "rate-dependence+delay", "dropped": "delay"}
-    pair = _cand("creep+delay", 0.4, 0.4, True)
-    out = with_pairs([rate, delay, creep], [warm, pair])
-    assert [c.effect for c in out] == ["rate-dependence", "delay", "creep", "creep+delay"]
-    assert out[0] is warm and out[3] is pair
-    worse = _cand("rate-dependence", 0.1, 0.5, True)
-    worse.evidence["from_pair"] = {"pair": "rate-dependence+delay", "dropped": "delay"}
-    assert with_pairs([rate, delay], [worse]) == [rate, delay]
