@@ -67,10 +67,39 @@ from hilbench.rig.rig import Rig
 from hilbench.runners.faults import DeviceFault, InterlockTripped, LoopStalled, SafeStop
 from hilbench.runners.pacing import DeviceClock, PcClock
 
-#: default watchdog time: longer than one retried timeout of the drivers' defaults
+#: shortest watchdog time: longer than one retried timeout of the drivers' defaults
 DEFAULT_WATCHDOG_S = 2.0
+#: the watchdog waits this much longer than the most patient device's retries (see :func:`watchdog_s`)
+WATCHDOG_MARGIN = 1.25
+#: drivers.base.retry's first back-off, s, for drivers without a ``backoff_s`` setting
+RETRY_BACKOFF_S = 0.02
 #: sleep until this long before a deadline, then spin
 DEFAULT_SPIN_S = 200e-6
+
+def device_patience_s(rig: Rig) -> float:
+    """The longest one request may take before a device's driver gives up (s): ``attempts`` tries of
+    ``timeout_s`` each plus the back-off between them, the largest over the rig's devices (their config
+    tables, driver defaults filled in). 0 for a simulated rig."""
+    from hilbench.rig.registry import get_driver
+
+    worst = 0.0
+    for name, table in rig.config.devices.items():
+        full = get_driver(str(table["driver"]), where=f"{rig.config.path}: [devices.{name}]").complete(table)
+        tries = max(1, int(full.get("attempts", 1)))
+        backoff_s = float(full.get("backoff_s", RETRY_BACKOFF_S))  # doubled after each try
+        worst = max(worst, tries * float(full.get("timeout_s", 0.0)) + backoff_s * (2 ** (tries - 1) - 1))
+    return worst
+
+
+def watchdog_s(rig: Rig) -> float:
+    """How long the loop may produce no sample before the watchdog makes the actuator safe (s).
+
+    At least :data:`DEFAULT_WATCHDOG_S`, and longer than any one device's retried request: a device
+    configured patient (a slow gateway, ``timeout_s = 1`` on a DAQ) then fails in its own words, naming
+    itself, instead of the watchdog cutting its retries short with a vaguer "no sample" trip.
+    """
+    return max(DEFAULT_WATCHDOG_S, WATCHDOG_MARGIN * device_patience_s(rig))
+
 
 def lateness_channel() -> ChannelSpec:
     return ChannelSpec("lateness", "s", CANONICAL_CHANNELS["lateness"][1])
@@ -165,7 +194,7 @@ def run_fixed_rate(
     clock_name = getattr(clock, "name", "")
     lock = safe.io_lock
     assert lock is not None
-    periods = watchdog_periods if watchdog_periods is not None else max(50, math.ceil(DEFAULT_WATCHDOG_S * fs))
+    periods = watchdog_periods if watchdog_periods is not None else max(50, math.ceil(watchdog_s(rig) * fs))
     timeout_s = periods * period_s
 
     def on_trip(silent_s: float, sample: int) -> None:

@@ -13,6 +13,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ import pytest
 from hilbench.recording.hdf5 import Recording
 from hilbench.rig.config import load_rig
 from hilbench.rig.emulation import start_emulators
+from hilbench.runners.fixed_rate import DEFAULT_WATCHDOG_S, device_patience_s, watchdog_s
 from tests.runners.emulated import RIGS, config_file, first_line
 from tests.runners.test_emulated_signals import LONG, LSB, model_file  # noqa: F401 (the fixture)
 
@@ -37,12 +39,27 @@ def _argv(kind: str, config: Path, out: Path, model: tuple[Path, str]) -> list[s
 
 
 def _patient_amplifier(config: Path) -> Path:
-    """The amplifier's module waits 0.5 s a reply (its default 0.2): its emulator serves from the test's
-    process, which a loaded CI machine stalled past three 0.2 s tries before the laser's fault came. Three
-    tries still end within the loop's 2 s watchdog; the fault under test is the laser's."""
+    """The amplifier's module waits 1 s a reply (its default 0.2): its emulator serves from the test's
+    process, which a loaded CI machine stalled past three 0.2 s tries, and once past three 0.5 s tries,
+    before the laser's fault came. The loop's watchdog grows with it (watchdog_s); the fault under test is
+    the laser's."""
     text = config.read_text(encoding="utf-8")
-    config.write_text(text.replace("[devices.aio]\n", "[devices.aio]\ntimeout_s = 0.5\n", 1), encoding="utf-8")
+    config.write_text(text.replace("[devices.aio]\n", "[devices.aio]\ntimeout_s = 1.0\n", 1), encoding="utf-8")
     return config
+
+
+def test_the_watchdog_outlasts_the_most_patient_devices_retries(tmp_path):
+    """A device configured patient fails in its own words: the watchdog waits longer than its retries."""
+    config = tmp_path / "rig.toml"
+    config.write_text(TEMPLATE.read_text(encoding="utf-8"), encoding="utf-8")
+    rig = SimpleNamespace(config=load_rig(config))
+    assert watchdog_s(rig) == DEFAULT_WATCHDOG_S > device_patience_s(rig)  # the drivers' defaults
+    text = config.read_text(encoding="utf-8").replace("[devices.aio]\n", "[devices.aio]\ntimeout_s = 1.0\n"
+                                                       "attempts = 4\n", 1)
+    config.write_text(text, encoding="utf-8")
+    rig = SimpleNamespace(config=load_rig(config))
+    assert device_patience_s(rig) == pytest.approx(4 * 1.0 + 0.02 * (1 + 2 + 4))
+    assert watchdog_s(rig) > device_patience_s(rig) > DEFAULT_WATCHDOG_S
 
 
 @pytest.mark.parametrize("fault", list(FAULTS))
@@ -52,7 +69,7 @@ def test_a_device_lost_mid_run_fails_in_one_line_keeps_the_run_and_ramps_to_rest
     with start_emulators(load_rig(TEMPLATE)) as emu:
         aio = emu.emulators["aio"]
         config = _patient_amplifier(config_file(emu, TEMPLATE, tmp_path))
-        assert load_rig(config).devices["aio"]["timeout_s"] == 0.5
+        assert load_rig(config).devices["aio"]["timeout_s"] == 1.0
         proc = subprocess.Popen([sys.executable, "-m", "hilbench.cli", *_argv(kind, config, out, model_file)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 120
