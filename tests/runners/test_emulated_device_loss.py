@@ -21,7 +21,11 @@ import pytest
 from hilbench.recording.hdf5 import Recording
 from hilbench.rig.config import load_rig
 from hilbench.rig.emulation import start_emulators
-from hilbench.runners.fixed_rate import DEFAULT_WATCHDOG_S, device_patience_s, watchdog_s
+from hilbench.runners.fixed_rate import (
+    DEFAULT_WATCHDOG_S,
+    device_patience_s,
+    watchdog_s,
+)
 from tests.runners.emulated import RIGS, config_file, first_line
 from tests.runners.test_emulated_signals import LONG, LSB, model_file  # noqa: F401 (the fixture)
 
