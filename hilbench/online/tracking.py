@@ -608,20 +608,26 @@ def _reachable(ref: np.ndarray, comp: Compensator, fs: float, allow_clip: bool,
     return clipped, info
 
 
+def _held_sample(rig: Any) -> dict[str, np.ndarray]:
+    """Every channel the rig reads over one unrecorded sample held at the last command."""
+    return rig.measure(rig.apply(np.full(1, rig.last_applied)))
+
+
 def _aux_now(rig: Any, model: Any) -> dict[str, float] | None:
-    """The model's aux channels as the rig reads them now, before anything moves (one unrecorded sample
-    held at the last command): what the reachable range is judged at. None for a model without aux
-    channels; a channel the rig does not read is left out (the range takes the model's reference)."""
+    """The model's aux channels as the rig reads them now, before anything moves: what the reachable
+    range is judged at. None for a model without aux channels; a channel the rig does not read is left
+    out (the range takes the model's reference)."""
     wanted = list(model.aux_channels)
     if not wanted:
         return None
-    measured = rig.measure(rig.apply(np.full(1, rig.last_applied)))
+    measured = _held_sample(rig)
     return {k: float(measured[k][0]) for k in wanted if k in measured}
 
 
 def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
-    """The aux channels' current readings (for the first command): one unrecorded held sample."""
-    measured = rig.measure(rig.apply(np.full(1, rig.last_applied)))
+    """The aux channels' current readings (for the first command), also preconditioning the compensator's
+    aux pre-filters on them."""
+    measured = _held_sample(rig)
     comp.precondition(np.full(1, rig.last_applied), {k: v for k, v in measured.items() if k in comp.channels})
     return {k: float(measured[k][0]) for k in comp.channels}
 
