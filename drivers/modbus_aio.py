@@ -129,6 +129,37 @@ def _device_kw(method: Callable[..., Any]) -> str:
     raise RuntimeError("this pymodbus client takes no unit id keyword (device_id/slave/unit)")
 
 
+def stale_transactions(heard: bytes) -> list[int] | None:
+    """The transaction ids of ``heard`` when it is nothing but complete, well-formed Modbus TCP replies
+    (MBAP header, protocol id 0, a read-registers, write-register(s) or exception PDU whose length
+    agrees with its header): the answers to earlier requests that timed out, arriving late, which the
+    client skips for their transaction ids. None for anything else (a garbled or cut-short reply)."""
+    ids: list[int] = []
+    at = 0
+    while at < len(heard):
+        if len(heard) - at < 8:
+            return None
+        tid, pid, length = (int.from_bytes(heard[at + k:at + k + 2], "big") for k in (0, 2, 4))
+        end = at + 6 + length
+        if pid != 0 or length < 3 or end > len(heard):
+            return None
+        function = heard[at + 7]
+        body = length - 2  # after the unit id and the function code
+        if function & 0x80:
+            ok = body == 1  # an exception response: its code
+        elif function in (3, 4):
+            ok = body >= 1 and body == 1 + heard[at + 8]  # a byte count, then the registers
+        elif function in (6, 16):
+            ok = body == 4  # the register (or first register) and the value (or count) echoed
+        else:
+            ok = False
+        if not ok:
+            return None
+        ids.append(tid)
+        at = end
+    return ids or None
+
+
 class ModbusAIO:
     """One analog I/O module: AO -> amplifier input (actuator), AIs -> current and output (sensor)."""
 
@@ -183,6 +214,12 @@ class ModbusAIO:
             except ConnectionException as exc:
                 raise DeviceLost(self.name, f"{what}: connection lost ({exc})") from exc
             except ModbusIOException as exc:
+                stale = stale_transactions(self._heard) if self.url.startswith("tcp://") else None
+                if stale:  # answers to requests that timed out before: the module is slower than timeout_s
+                    raise DeviceTimeout(self.name, f"{what}: only late replies to earlier requests came back "
+                                                   f"(transaction ids {', '.join(map(str, stale))}), none to this "
+                                                   f"one within {self.timeout_s} s: the module answers slower than "
+                                                   "timeout_s") from exc
                 if self._heard:  # bytes came back, but no Modbus reply could be read from them
                     raise DeviceTimeout(self.name, f"{what}: a reply that is not Modbus "
                                                    f"({len(self._heard)} bytes: {self._heard[:16].hex(' ')})") from exc

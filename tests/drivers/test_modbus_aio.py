@@ -21,7 +21,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 from drivers.base import DeviceError, DeviceLost, DeviceTimeout
 from drivers.emulators.modbus_aio import ModbusAIOEmulator
-from drivers.modbus_aio import DRIVER, ModbusAIO
+from drivers.modbus_aio import DRIVER, ModbusAIO, stale_transactions
 
 
 class TinyWorld:
@@ -194,6 +194,33 @@ def test_replies_that_are_never_modbus_raise_device_timeout_showing_the_bytes(
     assert len(requests(emulator)) == 2
     device.write(0.2)  # the connection is usable again once the module answers properly
     assert emulator.last_ao == pytest.approx(0.2, abs=AO_LSB_A)
+
+
+def test_late_replies_to_timed_out_requests_are_named_as_such(make_rig: Callable[..., Rig]) -> None:
+    """A module slower than timeout_s answers each request after the driver gave up on it: what comes
+    back is the answer to an earlier transaction, which the client skips. The error says so (late
+    replies, their transaction ids, the timeout), not that the reply is not Modbus."""
+    emulator, device, _ = make_rig(attempts=2, timeout_s=0.1)
+    late = bytes.fromhex("7fff 0000 0005 01 03 02 7c f4")  # a read's answer, transaction 32767
+    emulator.garbage_replies(2, late)
+    with pytest.raises(DeviceTimeout, match=r"only late replies to earlier requests came back \(transaction ids "
+                                            r"32767\), none to this one within 0.1 s") as info:
+        device.read()
+    assert "not Modbus" not in str(info.value) and "\n" not in str(info.value)
+    assert device.read() is not None  # answered in time again: the read succeeds
+
+
+def test_stale_transactions_reads_only_complete_well_formed_replies() -> None:
+    # two answers to holding-register reads that arrived together (seen on a loaded CI machine)
+    both = bytes.fromhex("0335 0000 0005 01 03 02 7cf4 0336 0000 0005 01 03 02 7cf5")
+    assert stale_transactions(both) == [821, 822]
+    assert stale_transactions(bytes.fromhex("0007 0000 0006 01 06 0000 0100")) == [7]  # a write's echo
+    assert stale_transactions(bytes.fromhex("0008 0000 0003 01 83 02")) == [8]  # an exception response
+    assert stale_transactions(both[:-1]) is None  # the second cut short
+    assert stale_transactions(bytes.fromhex("0001 0000 0002 01 99")) is None  # an exception without its code
+    assert stale_transactions(bytes.fromhex("0001 0000 0006 01 03 04 0000")) is None  # byte count against length
+    assert stale_transactions(b"HTTP/1.1 400 Bad Request\r\n\r\n") is None
+    assert stale_transactions(b"") is None
 
 
 def test_an_exception_response_is_a_one_line_device_error(make_rig: Callable[..., Rig]) -> None:
