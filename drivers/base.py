@@ -52,7 +52,18 @@ class DeviceLost(DeviceError):
     """The transport closed or the device stopped answering for good (lost heartbeat, EOF)."""
 
 
-def retry(call: Callable[[], T], *, device: str, what: str, attempts: int = 3, backoff_s: float = 0.02,
+#: the pause before the first retry of a timed-out request (s), doubled before each further one
+DEFAULT_BACKOFF_S = 0.02
+
+
+def retry_budget_s(attempts: int, timeout_s: float, backoff_s: float = DEFAULT_BACKOFF_S) -> float:
+    """The longest :func:`retry` takes over one request that never gets an answer (s): ``attempts``
+    timeouts and the back-off pauses between them."""
+    tries = max(1, int(attempts))
+    return tries * float(timeout_s) + float(backoff_s) * (2 ** (tries - 1) - 1)
+
+
+def retry(call: Callable[[], T], *, device: str, what: str, attempts: int = 3, backoff_s: float = DEFAULT_BACKOFF_S,
           retry_on: tuple[type[BaseException], ...] = (DeviceTimeout,)) -> T:
     """Call ``call`` up to ``attempts`` times, sleeping ``backoff_s * 2**k`` between tries.
 

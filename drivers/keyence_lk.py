@@ -33,7 +33,14 @@ import math
 import re
 from typing import Any
 
-from drivers.base import DeviceError, DriverSpec, Lazy, Setting, retry
+from drivers.base import (
+    DEFAULT_BACKOFF_S,
+    DeviceError,
+    DriverSpec,
+    Lazy,
+    Setting,
+    retry,
+)
 from drivers.serial_link import SerialLink, short
 
 _MEANINGS = ("command error (unknown command)",
@@ -198,7 +205,7 @@ SETTINGS = (
     Setting("baud", int, default=115200, doc="bit/s as set on the controller (115200, 57600, 38400, 19200, 9600)"),
     Setting("timeout_s", float, default=0.2, doc="s to wait for a reply"),
     Setting("attempts", int, default=3, doc="tries per command on timeouts"),
-    Setting("backoff_s", float, default=0.02, doc="s before the first retry (doubles each retry)"),
+    Setting("backoff_s", float, default=DEFAULT_BACKOFF_S, doc="s before the first retry (doubles each retry)"),
     Setting("general_mode_on_open", bool, default=True,
             doc="send R0 on open, so a controller left in communication mode measures again"),
     Setting("mode_timeout_s", float, default=3.0, doc="s to wait for the reply to R0 (a mode change is slow)"),

@@ -34,6 +34,7 @@ from typing import Any
 from urllib.parse import urlparse
 
 from drivers.base import (
+    DEFAULT_BACKOFF_S,
     DeviceError,
     DeviceLost,
     DeviceTimeout,
@@ -192,6 +193,7 @@ class ModbusAIO:
 
         self._heard = b""  # what came back for the request in flight (to name a reply that is not Modbus)
         kind, host, port = parse_url(self.url)
+        self._tcp = kind == "tcp"  # MBAP frames carry transaction ids (late replies can be named)
         # retries=0: pymodbus would resend silently; base.retry does it visibly, with back-off.
         if kind == "tcp":
             self.client = ModbusTcpClient(host, port=port, timeout=self.timeout_s, retries=0,
@@ -214,7 +216,7 @@ class ModbusAIO:
             except ConnectionException as exc:
                 raise DeviceLost(self.name, f"{what}: connection lost ({exc})") from exc
             except ModbusIOException as exc:
-                stale = stale_transactions(self._heard) if self.url.startswith("tcp://") else None
+                stale = stale_transactions(self._heard) if self._tcp else None
                 if stale:  # answers to requests that timed out before: the module is slower than timeout_s
                     raise DeviceTimeout(self.name, f"{what}: only late replies to earlier requests came back "
                                                    f"(transaction ids {', '.join(map(str, stale))}), none to this "
@@ -230,7 +232,7 @@ class ModbusAIO:
                 raise self._exception_error(what, reply)
             return reply
 
-        return retry(once, device=self.name, what=what, attempts=self.attempts, backoff_s=0.02)
+        return retry(once, device=self.name, what=what, attempts=self.attempts, backoff_s=DEFAULT_BACKOFF_S)
 
     def _trace(self, sending: bool, data: bytes) -> bytes:
         """pymodbus's packet hook: a request clears what was heard; received bytes accumulate."""

@@ -68,6 +68,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from drivers.base import (
+    DEFAULT_BACKOFF_S,
     DeviceError,
     DeviceLost,
     DeviceTimeout,
@@ -631,7 +632,7 @@ SETTINGS = (
     Setting("timeout_s", float, default=1.0, doc="s, DAQmx timeout of each read, write and clock wait"),
     Setting("rpc_margin_s", float, default=2.0, doc="s added to timeout_s as the deadline of every gRPC call"),
     Setting("attempts", int, default=3, doc="tries per operation on timeouts"),
-    Setting("backoff_s", float, default=0.02, doc="s before the first retry (doubles each retry)"),
+    Setting("backoff_s", float, default=DEFAULT_BACKOFF_S, doc="s before the first retry (doubles each retry)"),
     Setting("play_margin_s", float, default=5.0, doc="s added to a play's duration before its read gives up"),
     Setting("rest", float, default=0.0, doc="A, where stop(False) ramps to"),
     Setting("slew_per_s", float, default=100.0, doc="A/s, ramp rate of stop(False)"),

@@ -61,6 +61,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from drivers.base import DEFAULT_BACKOFF_S, retry_budget_s
 from hilbench.recording.hdf5 import CANONICAL_CHANNELS, ChannelSpec
 from hilbench.recording.writer_process import StreamedRun
 from hilbench.rig.rig import Rig
@@ -71,10 +72,9 @@ from hilbench.runners.pacing import DeviceClock, PcClock
 DEFAULT_WATCHDOG_S = 2.0
 #: the watchdog waits this much longer than the most patient device's retries (see :func:`watchdog_s`)
 WATCHDOG_MARGIN = 1.25
-#: drivers.base.retry's first back-off, s, for drivers without a ``backoff_s`` setting
-RETRY_BACKOFF_S = 0.02
 #: sleep until this long before a deadline, then spin
 DEFAULT_SPIN_S = 200e-6
+
 
 def device_patience_s(rig: Rig) -> float:
     """The longest one request may take before a device's driver gives up (s): ``attempts`` tries of
@@ -85,9 +85,8 @@ def device_patience_s(rig: Rig) -> float:
     worst = 0.0
     for name, table in rig.config.devices.items():
         full = get_driver(str(table["driver"]), where=f"{rig.config.path}: [devices.{name}]").complete(table)
-        tries = max(1, int(full.get("attempts", 1)))
-        backoff_s = float(full.get("backoff_s", RETRY_BACKOFF_S))  # doubled after each try
-        worst = max(worst, tries * float(full.get("timeout_s", 0.0)) + backoff_s * (2 ** (tries - 1) - 1))
+        worst = max(worst, retry_budget_s(full.get("attempts", 1), full.get("timeout_s", 0.0),
+                                          full.get("backoff_s", DEFAULT_BACKOFF_S)))
     return worst
 
 
