@@ -18,9 +18,16 @@ from hilbench.rig import registry
 from hilbench.rig.emulation import UDP_MULTICAST_GROUPS
 
 REPO = Path(__file__).resolve().parents[2]
+
+
 def _drivers_installed(template: Path) -> bool:
-    """False for a template whose driver needs an optional package that is missing (nidaqmx)."""
-    return "ni-daqmx" not in template.read_text(encoding="utf-8") or __import__("drivers.ni_daqmx").ni_daqmx.nidaqmx_available()
+    """False for a template whose driver needs an optional package that is missing (nidaqmx). Read from the
+    loaded config: a template that ``extends`` another takes its devices' drivers from it."""
+    from drivers.ni_daqmx import nidaqmx_available
+    from hilbench.rig.config import load_rig
+
+    drivers = {str(table.get("driver", "")) for table in load_rig(template).devices.values()}
+    return "ni-daqmx" not in drivers or nidaqmx_available()
 
 
 # the real-rig templates this machine can emulate (the NI one needs pip install 'hilbench[nidaqmx]')

@@ -94,10 +94,12 @@ def _render(browser: str, url: str, profile: Path, screenshot: Path | None = Non
     try:
         done = subprocess.run([*flags, url], capture_output=True, text=True, timeout=60)
     except subprocess.TimeoutExpired as exc:
-        # headless Chromium sometimes stays up after it has written the whole DOM (seen once in CI, the
-        # page polling for data): the dump it wrote is the page as rendered; a cut one fails below
+        # headless Chromium sometimes stays up after it has written the whole DOM or the screenshot
+        # (seen in CI, the page polling for data): what it wrote is the page as rendered; a cut dump
+        # or a missing screenshot fails below
         out = exc.output.decode("utf-8", "replace") if isinstance(exc.output, bytes) else (exc.output or "")
-        if "</html>" not in out:
+        written = screenshot is not None and screenshot.exists() and screenshot.stat().st_size > 0
+        if "</html>" not in out and not written:
             raise
         return out
     return done.stdout
