@@ -384,6 +384,8 @@ class Compensator:
         self.plan: dict[str, Any] | None = None  # what plan_path found (a path planned over the reference)
         #: samples the rig was held at the run's first command for the dynamics to settle (tracking)
         self.held_before_run = 0
+        #: samples of pre-actuation a tracking run starts with (:meth:`enable_preview`)
+        self.lead = 0
         self.settle_note = ""  # set when the rig's output had not settled before the run
         nf = max(ff_num.size, ff_den.size) - 1
         ci[K.CI_FF] = nf
@@ -683,29 +685,35 @@ class Compensator:
             n += int(math.ceil(float(delay.param("seconds")) * self.fs))
         return int(min(n, most_s * self.fs))
 
-    def enable_preview(self, reference: np.ndarray) -> np.ndarray:
+    def enable_preview(self, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Invert the model's dynamics and delay over the whole ``reference`` (um), known before the run
-        (:mod:`hilbench.online.preview`): returns what the static part must deliver per sample (pass it
-        to :meth:`step`/:meth:`feedforward` as ``target``) and switches the causal pre-filter off. A model
-        without dynamics or delay returns the reference as it is and changes nothing."""
-        from hilbench.online.preview import REGULARIZATION, preview_target
+        (:mod:`hilbench.online.preview`): returns (pre-actuation, targets), what the static part must
+        deliver before the reference's first sample and over its samples (pass them to
+        :meth:`step`/:meth:`feedforward` as ``target``), and switches the causal pre-filter off. A
+        model without dynamics or delay returns no pre-actuation and the reference as it is, and
+        changes nothing."""
+        from hilbench.online.preview import REGULARIZATION, preview_with_lead
 
         delay = self.model.effect("delay")
         delay_samples = float(delay.param("seconds")) * self.fs if delay is not None else 0.0
         if self.dynamics is None and delay_samples == 0.0:
-            return np.ascontiguousarray(reference, dtype=np.float64)
+            return np.zeros(0), np.ascontiguousarray(reference, dtype=np.float64)
         b, a = self.dynamics if self.dynamics is not None else (None, None)
-        target = preview_target(reference, b, a, delay_samples)
+        lead, target = preview_with_lead(reference, b, a, delay_samples)
         self.CI[K.CI_PREVIEW] = 1
         self.CI[K.CI_FF] = 0
         self.notes = [n for n in self.notes if not n.startswith(("dynamics", "delay not compensated"))]
         parts = (["the dynamics B/A (stable inversion, non-causal where its zeros demand it; gain limited where "
                   f"|B/A| < {REGULARIZATION ** 0.5:.2g} of its static gain)"] if b is not None else []) + \
                 ([f"the delay of {delay_samples:.3g} samples"] if delay_samples else [])
-        self.notes.append("feed-forward: " + " and ".join(parts) + " inverted with a preview of the whole reference")
+        self.notes.append("feed-forward: " + " and ".join(parts) + " inverted with a preview of the whole reference"
+                          + (f", {lead.size} samples of pre-actuation before its first sample (recorded at the "
+                             "run's start, left out of its figures)" if lead.size else ""))
         self.preview = {"dynamics": b is not None, "delay_samples": delay_samples,
-                        "target_range_um": [float(np.min(target)), float(np.max(target))]}
-        return target
+                        "preactuation_samples": int(lead.size),
+                        "target_range_um": [float(min(np.min(target), np.min(lead, initial=np.inf))),
+                                            float(max(np.max(target), np.max(lead, initial=-np.inf)))]}
+        return lead, target
 
     #: the approach before a planned run: each of its two legs lasts at least this long (s) ...
     APPROACH_LEG_S = 0.25

@@ -239,10 +239,13 @@ class TrackResult:
     limited: int = 0
     aux: dict[str, np.ndarray] = field(default_factory=dict)
     seconds: float = 0.0
-    approach_from: float = 0.0  # the applied command just before the first sample
+    approach_from: float = 0.0  # the applied command just before the first sample (of the pre-actuation)
     health: dict[str, Any] = field(default_factory=dict)
     reference_clipped: dict[str, Any] | None = None
     loop: dict[str, Any] | None = None  # a run on devices: the fixed-rate loop's lateness figures
+    #: the samples run before the reference's first one (the dynamics' stable inversion, recorded at
+    #: the run's start): ``input``, ``command``, ``output``, ``reference`` and ``aux:<channel>``
+    preactuation: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def error(self) -> np.ndarray:
@@ -257,6 +260,7 @@ class TrackResult:
         return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
                 "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,
                 "loop_seconds": self.seconds, "health": self.health,
+                "preactuation_samples": int(self.preactuation.get("input", np.zeros(0)).size),
                 **({"loop": self.loop} if self.loop else {}),
                 **({"reference_clipped": self.reference_clipped} if self.reference_clipped else {})}
 
@@ -451,7 +455,18 @@ def track(
         comp.range.plan_over_fitted()
     sensor = rig.config.sensor("output") if hasattr(rig, "config") else None
     ref, clipped = _reachable(ref, comp, fs, allow_clip, getattr(sensor, "range", None))
-    targets = comp.enable_preview(ref) if preview else ref
+    lead = 0
+    if preview:
+        pre, targets = comp.enable_preview(ref)
+        if pre.size:
+            # the pre-actuation runs as the run's first samples, the reference held at its first value:
+            # the same loop and pacing carry it into the run without a gap; the figures leave it out
+            lead = int(pre.size)
+            ref = np.concatenate([np.full(lead, ref[0]), ref])
+            targets = np.concatenate([pre, targets])
+    else:
+        targets = ref
+    comp.lead = lead
     lead_in = np.zeros(0)
     approach = np.zeros(0)
     if planned:
@@ -518,15 +533,21 @@ def track(
     result = _result(rig, comp, ref, cmd, applied, y, aux, described, clipped)
     result.limited, result.seconds, result.approach_from = limited, seconds, approach_from
     if output is not None:
-        result.file, result.group = _write(rig, result, output, label)
+        result.file, result.group = _write(rig, result, (ref, cmd, applied, y, aux), output, label)
     return result
 
 
 def _result(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, applied: np.ndarray, y: np.ndarray,
             aux: dict[str, np.ndarray], described: dict[str, Any], clipped: dict[str, Any] | None) -> TrackResult:
     """The run's figures: metrics of the output against the reference, the compensator's counters,
-    the run's health."""
+    the run's health. The arrays are the whole run as the rig ran it; its first ``comp.lead`` samples
+    (the pre-actuation) go to ``preactuation`` and stay out of the figures."""
     act = rig.actuator
+    lead = min(comp.lead, ref.size)
+    pre = {"input": applied[:lead], "command": cmd[:lead], "output": y[:lead], "reference": ref[:lead],
+           **{f"aux:{k}": v[:lead] for k, v in aux.items()}}
+    ref, cmd, applied, y = ref[lead:], cmd[lead:], applied[lead:], y[lead:]
+    aux = {k: v[lead:] for k, v in aux.items()}
     result = TrackResult(tracking_metrics(ref, y), np.arange(ref.size) / rig.sample_rate_hz, ref, cmd, applied, y,
                          comp.describe(), aux=aux)
     result.compensator["counters"] = comp.counters()
@@ -534,6 +555,7 @@ def _result(rig: Any, comp: Compensator, ref: np.ndarray, cmd: np.ndarray, appli
     result.health = run_health(cmd, applied, comp.bracket, (act.min, act.max),
                                result.metrics.get("erms_pct", math.nan), comp.model, _span(ref))
     result.reference_clipped = clipped
+    result.preactuation = pre
     return result
 
 
@@ -549,6 +571,8 @@ def _finish_attrs(result: TrackResult) -> dict[str, Any]:
              "health": json.dumps(result.health, default=str), "degraded": bool(result.health.get("degraded", False))}
     if result.reference_clipped is not None:
         extra["reference_clipped"] = json.dumps(result.reference_clipped)
+    # the run's first samples are the pre-actuation (reference held at its first value), not in the figures
+    extra["preactuation_samples"] = int(result.preactuation.get("input", np.zeros(0)).size)
     return extra
 
 
@@ -632,9 +656,11 @@ def _first_aux(rig: Any, comp: Compensator) -> dict[str, float]:
     return {k: float(measured[k][0]) for k in comp.channels}
 
 
-def _write(rig: Any, result: TrackResult, output: str | Path, label: str) -> tuple[str, str]:
+def _write(rig: Any, result: TrackResult, whole: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]],
+           output: str | Path, label: str) -> tuple[str, str]:
     """A lock-step run, recorded when it is done (the fused loop runs in one go): the channels a run on
-    devices records (``lateness`` 0: a lock-step simulation is never late)."""
+    devices records (``lateness`` 0: a lock-step simulation is never late), over the ``whole`` run
+    (reference, command, input, output, aux) with its pre-actuation, as a run on devices records it."""
     from hilbench.recording.hdf5 import RecordingWriter
     from hilbench.runners.fixed_rate import lateness_channel, tracking_channels
 
@@ -644,8 +670,9 @@ def _write(rig: Any, result: TrackResult, output: str | Path, label: str) -> tup
     run = writer.begin_run(label, channels, experiment="track", excitation=result.compensator.get("reference", {}),
                            sample_rate_hz=rig.sample_rate_hz, rig_toml=rig.config.text, devices=rig.devices(),
                            extra_attrs={"compensator": json.dumps(result.compensator, default=str), "mode": "lockstep"})
-    data = {"time": result.time, "input": result.input, "output": result.output, "reference": result.reference,
-            "error": result.error, "command": result.command, "lateness": np.zeros(result.time.size), **result.aux}
+    ref, cmd, applied, y, aux = whole
+    data = {"time": np.arange(ref.size) / rig.sample_rate_hz, "input": applied, "output": y, "reference": ref,
+            "error": ref - y, "command": cmd, "lateness": np.zeros(ref.size), **aux}
     try:
         run.append({c.name: data[c.name] for c in channels})
     except BaseException as exc:

@@ -90,7 +90,9 @@ def test_sweep_and_feedback_track_of_the_000_rig_through_nidaqmx_paced_by_the_em
     assert attrs["mode"] == "fixed-rate" and attrs["status"] == "complete"
     assert str(attrs["clock"]).startswith("device daq: DAQmx continuous AI at 1000 Hz")
     n = lateness.size
-    assert n == 1001 and np.all(np.isfinite(lateness)) and np.all(lateness >= 0.0)
+    # the reference's 1001 samples after the dynamics' pre-actuation (the run's first samples)
+    assert n == 1001 + int(attrs["preactuation_samples"]) and document["preactuation_samples"] == n - 1001
+    assert np.all(np.isfinite(lateness)) and np.all(lateness >= 0.0)
     assert np.all(np.diff(taken) > 0)
     # no sample before its tick: the k-th sample at least k - 1 periods after the first (ticks missed
     # while the loop was late are skipped, never run ahead of)

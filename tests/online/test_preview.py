@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from hilbench.online.preview import preview_target, settling_samples
+from hilbench.online.preview import preview_with_lead, settling_samples
 
 
 def _dynamics(rng: np.random.Generator, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -54,7 +54,7 @@ def test_the_previewed_target_through_the_dynamics_and_delay_gives_the_reference
     r = _reference(rng, fs, 0.2 * fn)  # content up to a fifth of the resonance
     span = float(np.ptp(r))
     skip = settling_samples(b, a) // 50 + int(delay) + 2  # the first samples: the dynamics' own start
-    with_preview = _through(preview_target(r, b, a, delay), b, a, delay) - r
+    with_preview = _through(preview_with_lead(r, b, a, delay)[1], b, a, delay) - r
     without = _through(r, b, a, delay) - r
     e_with = float(np.sqrt(np.mean(with_preview[skip:] ** 2))) / span
     e_without = float(np.sqrt(np.mean(without[skip:] ** 2))) / span
@@ -63,6 +63,43 @@ def test_the_previewed_target_through_the_dynamics_and_delay_gives_the_reference
 
 def test_without_dynamics_or_delay_the_target_is_the_reference_and_nan_holds() -> None:
     r = np.array([1.0, 2.0, np.nan, 4.0])
-    np.testing.assert_array_equal(preview_target(r, None, None, 0.0), [1.0, 2.0, 2.0, 4.0])
-    shifted = preview_target(np.arange(100.0), None, None, 2.0)  # a pure delay: the reference 2 samples ahead
+    lead, same = preview_with_lead(r, None, None, 0.0)
+    np.testing.assert_array_equal(same, [1.0, 2.0, 2.0, 4.0])
+    assert lead.size == 0
+    lead, shifted = preview_with_lead(np.arange(100.0), None, None, 2.0)  # a pure delay: the reference 2 samples ahead
     np.testing.assert_allclose(shifted[10:90], np.arange(12.0, 92.0), atol=1e-6)
+    np.testing.assert_allclose(lead, [1.0], atol=1e-3)  # its second sample delivered before it starts (the first is r0)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_with_its_pre_actuation_the_reference_is_followed_from_its_first_sample(seed: int) -> None:
+    """Stable inversion is non-causal even on minimum-phase dynamics (the hold's sample, a delay, the
+    regularised inverse ringing both ways): played from rest with its pre-actuation before it, the
+    target gives the reference from its very first sample. A reference that starts moving at once
+    (a ramp from its first sample, as a triangle starting at a corner) without the pre-actuation
+    starts late and rings; the static value is exact (no Tikhonov shrink at rest)."""
+    rng = np.random.default_rng(100 + seed)
+    fs = float(rng.choice([1000.0, 5000.0, 20000.0, 50000.0]))
+    b, a, fn = _dynamics(rng, fs)
+    delay = float(rng.choice([0.0, rng.uniform(0.3, 8.0)]))
+    f = fn / rng.uniform(5.0, 20.0)  # a triangle from its lower corner, well below the resonance
+    n = int(fs * rng.integers(2, 5) / f)
+    r0 = rng.uniform(-20, 20)
+    amplitude = rng.uniform(1.0, 10.0)
+    r = r0 + amplitude * signal.sawtooth(2 * np.pi * f * np.arange(n) / fs, 0.5) + amplitude  # from r0 up
+    span = float(np.ptp(r))
+    lead, v = preview_with_lead(r, b, a, delay)
+    rest = np.full(settling_samples(b, a) + 10, r0)
+    y = _through(np.concatenate([rest, lead, v]), b, a, delay)[rest.size + lead.size:]
+    y_without = _through(np.concatenate([rest, v]), b, a, delay)[rest.size:]
+    start = int(fs / f / 2)  # up to the first corner: where the run starts moving
+    start_with = float(np.max(np.abs(y - r)[:start])) / span
+    later = float(np.max(np.abs(y - r)[start:])) / span  # the corners' error, which no pre-actuation changes
+    start_without = float(np.max(np.abs(y_without - r)[:start])) / span
+    assert lead.size > 0
+    # with it the start is no worse than any later corner; without it, worse than with it
+    assert later <= 0.02 and start_with <= later and start_with < start_without, \
+        (fs, fn, delay, lead.size, start_with, later, start_without)
+    flat = np.full(50, r0)  # a reference at rest needs no pre-actuation and is delivered exactly
+    lead, v = preview_with_lead(flat, b, a, delay)
+    assert lead.size == 0 and np.allclose(v, r0, rtol=0, atol=1e-12 * max(1.0, abs(r0)))
