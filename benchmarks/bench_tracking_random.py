@@ -126,7 +126,8 @@ def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None
 def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
     """The fitted model's own error on the tracking run: its free run on the commands the rig
     applied (after the history ``track`` drove before the run: rest -> top of the fitted range ->
-    first command, at the slew limit, held there while the dynamics settle) against the measured output, normalised like the tracking
+    first command, at the slew limit, held there while the dynamics settle, then the pre-actuation)
+    against the measured output, normalised like the tracking
     metric (by the reference's span). Near the tracking error, the model does not carry over to
     this reference; well below it, the inverse or the loop loses the rest."""
     import numpy as np
@@ -141,10 +142,12 @@ def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
     top = max(min(act.max, float(model.norm.get("u_scale", act.max))), act.min)
     rest = act.rest
     held = int(res.compensator.get("held_before_run_samples", 0))  # settling at the first command
+    lead = res.preactuation.get("input", np.zeros(0))  # the run's pre-actuation, before its first sample
     pre = np.concatenate([[rest], ramp(rest, top, step), ramp(top, res.approach_from, step),
-                          np.full(held, res.approach_from)])
+                          np.full(held, res.approach_from), lead])
     u = np.concatenate([pre, res.input])
-    aux = {ch: np.concatenate([np.full(pre.size, v[0]), v]) for ch, v in res.aux.items()}
+    aux = {ch: np.concatenate([np.full(pre.size - lead.size, v[0]), res.preactuation.get(f"aux:{ch}", v[:0]), v])
+           for ch, v in res.aux.items()}
     y = model.simulate(RunData(u, None, aux, fs, name="track", approach_from=rest))[pre.size:]
     e = y - res.output
     span = float(np.ptp(res.reference))
@@ -209,6 +212,7 @@ def run_case(seed: int, folder: str) -> dict[str, Any]:
 
         t1 = time.perf_counter()
         fr = fit([rec], final_spec)
+        fr.save(case_dir / "model.json")
         val = float(fr.metrics["validation"]["erms_pct"])
         val_rmse = float(fr.metrics["validation"]["rmse"])
         out.update(validation_erms_pct=val, validation_rmse_um=val_rmse, train_erms_pct=float(fr.metrics["train"]["erms_pct"]),
@@ -345,11 +349,15 @@ def summarize(results: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def run(cases: int = 30, seed: int = 0, workers: int = 1, only: list[int] | None = None,
-        scheduler: str | None = None) -> dict[str, Any]:
+        scheduler: str | None = None, keep: str | None = None) -> dict[str, Any]:
     tmp = tempfile.TemporaryDirectory(prefix="hilbench-bench-track-random-")
     C.use_private_numba_cache(tmp.name)
+    folder = tmp.name
+    if keep is not None:  # each rig's config, sweep and fitted model kept (rig-SEED/) to track again
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        folder = str(Path(keep).resolve())
     seeds = list(only) if only else list(range(seed, seed + cases))
-    jobs = [(s, tmp.name) for s in seeds]
+    jobs = [(s, folder) for s in seeds]
     workers = max(1, min(workers, MAX_WORKERS))
     t0 = time.perf_counter()
     try:
@@ -387,10 +395,12 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--only", type=int, nargs="*", help="these rig seeds instead of a range")
     ap.add_argument("--output", type=str, default=None, help="also write the JSON to this file")
     ap.add_argument("--jsonl", type=str, default=None, help="append each rig's row to this file as it finishes")
+    ap.add_argument("--keep", type=str, default=None, help="keep each rig's config, sweep and fitted model "
+                    "(model.json) in this folder (rig-SEED/), to track them again")
     a = ap.parse_args(argv)
     global _JSONL
     _JSONL = a.jsonl
-    doc = run(a.cases, a.seed, a.workers, a.only, a.scheduler)
+    doc = run(a.cases, a.seed, a.workers, a.only, a.scheduler, a.keep)
     C.print_document(doc, a.output)
 
 
