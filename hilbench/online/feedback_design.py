@@ -35,7 +35,9 @@ Below that ceiling the gain is weighed against the errors this model makes on th
 (:func:`predicted_error`): the training residual (measured - model, sensor noise included) is the
 error feed-forward leaves on the training drives, and with the loop closed the measured error is that
 residual through the loop's sensitivity S = 1 / (1 + L). An integrator removes the slow part of it and
-amplifies what lies near and above the crossover (and feeds the noise back). The design takes the
+amplifies what lies near and above the crossover (and feeds the noise back); each run's constant part
+it removes from an empty start, so over a run of T s only as far as exp(-ki g t) has decayed
+(decision 0122). The design takes the
 largest gain whose predicted error, at the worst local gain of the range, is not above
 feed-forward's: a reference meets slow errors the training residual lacks (an offset of the starting
 state, a drift), and those the integrator removes the better the higher its gain, so the gain is not
@@ -113,6 +115,11 @@ class IdentifiedLoop:
     #: none: the error feed-forward leaves on drives the model was not fitted on
     held_out_um: float | None = None
     held_out_spectrum: tuple[np.ndarray, np.ndarray] | None = None
+    #: the spectra's constant part run by run ((um^2 of the mean square per run, the run's length in
+    #: s), :func:`constant_part`): what an integrator removes of it depends on how long it has. None:
+    #: removed whole (a run long against the integral time)
+    residual_constant: tuple[np.ndarray, np.ndarray] | None = None
+    held_out_constant: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def has_dynamics(self) -> bool:
@@ -254,6 +261,26 @@ def residual_spectrum(residuals: list[tuple[np.ndarray, float]], fs: float) -> t
     return centres, np.asarray(power, float), float(longest)
 
 
+def constant_part(residuals: list[tuple[np.ndarray, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """The constant part of each residual ((samples, rate in Hz) per run): its share of the residuals'
+    mean square (um^2, n mean^2 over all samples: the spectrum's first bin, run by run) and the run's
+    length (s)."""
+    total = max(sum(r.size for r, _ in residuals), 1)
+    share = np.array([r.size * float(np.mean(r)) ** 2 / total if r.size else 0.0 for r, _ in residuals])
+    seconds = np.array([r.size / rfs for r, rfs in residuals], dtype=float)
+    return share, seconds
+
+
+def _remaining_constant(constant: tuple[np.ndarray, np.ndarray], rate_per_s: float) -> float:
+    """What an integral loop leaves of each run's constant error over the run (um^2 of the mean square):
+    the error decays as exp(-rate t) from the run's start (the integrator starts empty), so over a run
+    of T seconds its mean square is a (1 - exp(-2 rate T)) / (2 rate T) share of the constant's."""
+    share, seconds = constant
+    x = 2.0 * rate_per_s * seconds
+    kept = np.where(x > 1e-9, -np.expm1(-x) / np.where(x > 1e-9, x, 1.0), 1.0)
+    return float(np.sum(share * kept))
+
+
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
@@ -331,16 +358,18 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     # the largest lag of any training run: the loop must hold at the slowest the rig answered
     lag_s = max(lags)
     centres, power, longest = residual_spectrum(residuals, fs)
-    ho_um, ho_spectrum = None, None
+    ho_um, ho_spectrum, ho_constant = None, None, None
     if held_out:
         ho_centres, ho_power, _ = residual_spectrum(held_out, fs)
         ho_spectrum = (ho_centres, ho_power)
         ho_um = math.sqrt(float(np.sum(ho_power)))  # the bins sum to the mean square
+        ho_constant = constant_part(held_out)
     return IdentifiedLoop(fs, b, a, d, lag_s, (lo, hi), f"training data: {used} run(s), {allg.size} stretches",
                           noise_um=float(np.median(noises)), bandwidth_hz=max(bands) or None,
                           residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
                           residual_spectrum=(centres, power), longest_run_s=longest,
-                          held_out_um=ho_um, held_out_spectrum=ho_spectrum)
+                          held_out_um=ho_um, held_out_spectrum=ho_spectrum,
+                          residual_constant=constant_part(residuals), held_out_constant=ho_constant)
 
 
 # ====================================================================================================
@@ -406,16 +435,26 @@ def predicted_error(pid: PID, loop: IdentifiedLoop, *, held_out: bool = False) -
     spectrum = loop.held_out_spectrum if held_out else loop.residual_spectrum
     if spectrum is None:
         return None
+    constant = loop.held_out_constant if held_out else loop.residual_constant
     f, p = spectrum
     if pid.kp == 0.0 and pid.ki == 0.0 and pid.kd == 0.0:
         return math.sqrt(float(np.sum(p)))
-    dc = f == 0.0  # an integrator removes a constant error (its response is infinite there)
+    # an integrator removes a constant error in the end (its response is infinite there), but from an
+    # empty start: over a run of T s at a loop rate ki g it leaves a (1 - exp(-2 ki g T)) / (2 ki g T)
+    # share of it (a gain whose integral time outlasts the run removes almost nothing)
+    dc = f == 0.0
     w = 2.0 * np.pi * f[~dc]
     base = _controller_response(pid, loop.fs, w) * loop.plant_response(w)
     worst = 0.0
     for g in loop.gains():
         s2 = 1.0 / np.abs(1.0 + g * base) ** 2
-        worst = max(worst, float(np.sum(p[~dc] * s2)) + (0.0 if pid.ki > 0.0 else float(np.sum(p[dc]))))
+        if pid.ki <= 0.0:
+            left = float(np.sum(p[dc]))
+        elif constant is None:
+            left = 0.0
+        else:
+            left = _remaining_constant(constant, pid.ki * g)
+        worst = max(worst, float(np.sum(p[~dc] * s2)) + left)
     return math.sqrt(worst)
 
 

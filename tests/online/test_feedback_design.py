@@ -116,10 +116,38 @@ def test_the_binned_spectrum_keeps_the_residuals_power() -> None:
     assert FD.predicted_error(PID(0.0, 0.0, 0.0), loop) == pytest.approx(loop.residual_um, rel=1e-9)
 
 
+@pytest.mark.parametrize("ki_t", [0.1, 1.0, 10.0, 100.0])
+def test_a_constant_error_is_removed_only_as_fast_as_the_integrator_goes(ki_t: float) -> None:
+    """A residual that is an offset over runs of T s: the loop's integrator starts empty, so over the
+    run it leaves (1 - exp(-2 ki T)) / (2 ki T) of the offset's square, not nothing. The prediction
+    against the integral loop simulated sample by sample (one sample of measurement delay): before,
+    any gain was credited with the whole offset, so a gain whose integral time outlasts the run
+    (ki T = 0.1) was predicted to leave 0 where it leaves 91 %."""
+    rng = np.random.default_rng(int(ki_t * 10))
+    seconds = [float(t) for t in rng.uniform(0.5, 2.0, 3)]
+    offsets = [float(o) for o in rng.uniform(-1.0, 1.0, 3)]
+    runs = [(np.full(int(t * FS), o), FS) for t, o in zip(seconds, offsets)]
+    loop = FD.IdentifiedLoop(FS, np.ones(1), np.ones(1), 0, 0.0, (1.0, 1.0), "test")
+    centres, power, _ = FD.residual_spectrum(runs, FS)
+    loop.residual_spectrum, loop.residual_constant = (centres, power), FD.constant_part(runs)
+    ki = ki_t / float(np.mean(seconds))
+    squares, count = 0.0, 0
+    for r, _ in runs:  # e = offset - the integrator's correction, which acts one sample late
+        correction, e = 0.0, np.empty(r.size)
+        for k in range(r.size):
+            e[k] = r[k] - correction
+            correction += ki / FS * e[k]
+        squares, count = squares + float(np.sum(e * e)), count + r.size
+    simulated = math.sqrt(squares / count)
+    predicted = FD.predicted_error(PID(0.0, ki, 0.0), loop)
+    assert predicted == pytest.approx(simulated, rel=0.05), (predicted, simulated)
+    assert FD.predicted_error(PID(0.0, 0.0, 0.0), loop) == pytest.approx(math.sqrt(float(np.sum(power))), rel=1e-9)
+
+
 def test_a_model_at_the_noise_floor_leaves_the_loop_open() -> None:
     """A residual that is white noise: an integrator feeds back more than it removes (Bode's
     integral: the mean of |S|^2 over frequency is at least 1), so the loop is left open or all but
-    open (a record's own slowest noise, its mean for one, is removed by the smallest gains)."""
+    open."""
     for seed in range(4):
         loop = _spectrum_loop(np.random.default_rng(seed).normal(0.0, 0.02, 20000))
         assert FD.predicted_error(PID(0.0, 0.1 * loop.fs, 0.0), loop) > 1.02 * FD.predicted_error(PID(0.0, 0.0, 0.0), loop)
