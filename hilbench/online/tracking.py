@@ -251,6 +251,11 @@ class TrackResult:
     def error(self) -> np.ndarray:
         return self.reference - self.output
 
+    @property
+    def preactuation_samples(self) -> int:
+        """Samples of pre-actuation the run started with (recorded before the reference's first)."""
+        return int(self.preactuation["input"].size) if "input" in self.preactuation else 0
+
     def __repr__(self) -> str:
         return (f"TrackResult({self.time.size} samples, erms {self.metrics.get('erms_pct', float('nan')):.3g} %, "
                 f"max error {self.metrics.get('max_abs_error', float('nan')):.4g} um"
@@ -260,7 +265,7 @@ class TrackResult:
         return {"metrics": self.metrics, "file": self.file, "run": self.group, "samples": int(self.time.size),
                 "commands_limited_by_safety_path": self.limited, "compensator": self.compensator,
                 "loop_seconds": self.seconds, "health": self.health,
-                "preactuation_samples": int(self.preactuation.get("input", np.zeros(0)).size),
+                "preactuation_samples": self.preactuation_samples,
                 **({"loop": self.loop} if self.loop else {}),
                 **({"reference_clipped": self.reference_clipped} if self.reference_clipped else {})}
 
@@ -572,7 +577,7 @@ def _finish_attrs(result: TrackResult) -> dict[str, Any]:
     if result.reference_clipped is not None:
         extra["reference_clipped"] = json.dumps(result.reference_clipped)
     # the run's first samples are the pre-actuation (reference held at its first value), not in the figures
-    extra["preactuation_samples"] = int(result.preactuation.get("input", np.zeros(0)).size)
+    extra["preactuation_samples"] = result.preactuation_samples
     return extra
 
 
