@@ -19,7 +19,11 @@ the unmodelled lag is the time shift that best maps the model's output onto the 
 percentile of the measured over the modelled rise on monotone stretches of the model output
 (each 2 % of the span and at least 20 noise sigma long), after that shift, widened to at least
 0.8-1.25, its lower end at least a tenth of the median; more than a quarter of the stretches
-moving against the model is refused. Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
+moving against the model is refused. Two measured responses complete the loop where they were
+measured (decision 0123, :mod:`hilbench.online.loop_response`): the rig's response over the model's
+without its rate terms (a resonance the model lacks; set here), and the compensator's own response to
+a correction (simulated by :meth:`hilbench.online.inverse.Compensator.correction_response`, which
+sets it). Without the recording it is the model's own loop (unit gain, the model's dynamics and delay) and says so: the
 design's 6 dB and 45 deg are then the only allowance for what the model misses, and its crossover
 is kept below fs / 100.
 
@@ -59,10 +63,21 @@ from typing import Any
 import numpy as np
 
 from hilbench.errors import UserError
+from hilbench.online.loop_response import MeasuredResponse, response_at, rig_over_model
 from hilbench.online.pid import PID
 
-__all__ = ["IdentifiedLoop", "InstabilityError", "identify_loop", "margins", "design", "check", "predicted_error",
-           "residual_spectrum", "MIN_GAIN_MARGIN_DB", "MIN_PHASE_MARGIN_DEG"]
+__all__ = [
+    "MIN_GAIN_MARGIN_DB",
+    "MIN_PHASE_MARGIN_DEG",
+    "IdentifiedLoop",
+    "InstabilityError",
+    "check",
+    "design",
+    "identify_loop",
+    "margins",
+    "predicted_error",
+    "residual_spectrum",
+]
 
 #: design targets over the whole local-gain range
 MIN_GAIN_MARGIN_DB = 6.0
@@ -120,6 +135,12 @@ class IdentifiedLoop:
     #: removed whole (a run long against the integral time)
     residual_constant: tuple[np.ndarray, np.ndarray] | None = None
     held_out_constant: tuple[np.ndarray, np.ndarray] | None = None
+    #: the rig's response over the model's where the training runs measured it (the lag included),
+    #: None where they did not (:mod:`hilbench.online.loop_response`)
+    measured: MeasuredResponse | None = None
+    #: the compensator's response to a correction (static model output per um added to the target),
+    #: set by the compensator that closes this loop; None: taken as one
+    compensator: MeasuredResponse | None = None
 
     @property
     def has_dynamics(self) -> bool:
@@ -133,7 +154,19 @@ class IdentifiedLoop:
         """Unit-gain plant (measurement delay included) at angular frequencies w (rad/s)."""
         zi = np.exp(-1j * w / self.fs)  # z^-1
         g = np.polyval(self.b[::-1], zi) / np.polyval(self.a[::-1], zi)
-        return g * zi ** (1 + self.delay_samples) * np.exp(-1j * w * self.lag_s)
+        g = g * zi ** (1 + self.delay_samples) * np.exp(-1j * w * self.lag_s)
+        f = w / (2.0 * np.pi)
+        if self.measured is not None:
+            # where the runs measured the rig's response over the model's, that response and not
+            # the lag alone: a resonance the model lacks is in the loop
+            g = g * response_at(self.measured, f, self.lag_s)
+        if self.compensator is not None:
+            # its phase and its rise, not a fall: a correction the inverse passes only in part at the
+            # size of the sensor's noise (a reversal on a hysteresis branch, a dead zone) passes whole
+            # once it grows, and the loop must hold then too
+            c = response_at(self.compensator, f)
+            g = g * c / np.maximum(np.minimum(np.abs(c), 1.0), 1e-12)
+        return g
 
     def integer_plant(self) -> tuple[np.ndarray, np.ndarray]:
         """(b, a) with the model delay and the unmodelled lag rounded up, for the pole check (the
@@ -147,7 +180,9 @@ class IdentifiedLoop:
                 "unmodelled_lag_s": float(self.lag_s), "dynamics": "model" if self.has_dynamics else "none",
                 "source": self.source, "noise_um": self.noise_um,
                 "identified_up_to_hz": self.bandwidth_hz, "training_error_um": self.residual_um,
-                "held_out_error_um": self.held_out_um}
+                "held_out_error_um": self.held_out_um,
+                "rig_over_model": self.measured.describe() if self.measured is not None else None,
+                "compensator_response": self.compensator.describe() if self.compensator is not None else None}
 
 
 # ====================================================================================================
@@ -168,7 +203,7 @@ def _model_dynamics(model: Any, fs: float) -> tuple[np.ndarray, np.ndarray, int]
     return b, a, d
 
 
-def _training_runs(model: Any) -> list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], float]]:
+def training_runs(model: Any) -> list[tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], float]]:
     """(input, output, aux, fs, n_train) of the runs the model was fitted on, in order, when the
     files are at hand; the first n_train samples trained it (70 % unless the split names runs)."""
     from hilbench.recording.hdf5 import Recording
@@ -281,6 +316,28 @@ def _remaining_constant(constant: tuple[np.ndarray, np.ndarray], rate_per_s: flo
     return float(np.sum(share * kept))
 
 
+def rate_free(I: np.ndarray) -> np.ndarray:
+    """A compiled model's integer layout with its rate terms (rate-dependence) switched off."""
+    from hilbench.models import stepping as ST
+
+    I = I.copy()
+    I[ST.I_RATE] = 0
+    return I
+
+
+def _rate_free_output(compiled: Any, u: np.ndarray, aux: dict[str, np.ndarray]) -> np.ndarray:
+    """The model's output on ``u`` from a virgin state with its rate terms off."""
+    from hilbench.models import stepping as ST
+
+    n = u.size
+    a = (np.ascontiguousarray(np.column_stack([np.asarray(aux[c], float)[:n] for c in compiled.channels]))
+         if compiled.channels else np.zeros((n, 1)))
+    out = np.empty(n)
+    I = rate_free(compiled.I)
+    ST.model_block(I, compiled.P, np.zeros(int(I[ST.I_NX])), np.ascontiguousarray(u, dtype=np.float64), a, out)
+    return out
+
+
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
@@ -289,7 +346,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     from hilbench.models import stepping as ST
 
     b, a, d = _model_dynamics(model, fs)
-    runs = _training_runs(model) if runs is None else runs
+    runs = training_runs(model) if runs is None else runs
     lags: list[float] = []
     gains: list[np.ndarray] = []
     noises: list[float] = []
@@ -298,6 +355,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
     counts: list[int] = []
     residuals: list[tuple[np.ndarray, float]] = []
     held_out: list[tuple[np.ndarray, float]] = []
+    responses: list[tuple[np.ndarray, np.ndarray, float, float]] = []
     used = 0
     compiled: dict[float, Any] = {}
     for run in runs:
@@ -312,6 +370,10 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         except Exception:  # noqa: BLE001  (a model that cannot run on the record: not evidence)
             continue
         y_mod = np.asarray(y_mod, float)
+        # the rig's response is measured against the model without its rate terms: those are its
+        # account of how the loop widens with the drive rate, not of how the rig answers the small,
+        # fast corrections of a feedback loop; there the rig answers with its mechanics
+        y_free = _rate_free_output(compiled[run_fs], u, aux) if compiled[run_fs].I[ST.I_RATE] != 0 else y_mod
         rest = y[n_train:] - y_mod[n_train:]
         rest = rest[np.isfinite(rest)]
         u, y, y_mod = u[:n_train], y[:n_train], y_mod[:n_train]
@@ -328,6 +390,7 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         bands.append(excited_bandwidth_hz(u, run_fs))
         r = (y - y_mod)[np.isfinite(y) & np.isfinite(y_mod)]
         residuals.append((r, float(run_fs)))
+        responses.append((y_free[:n_train], y, float(run_fs), noise))
         if rest.size:
             held_out.append((rest, float(run_fs)))
         squares.append(float(np.sum(r * r)))
@@ -369,7 +432,8 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
                           residual_um=math.sqrt(sum(squares) / max(sum(counts), 1)),
                           residual_spectrum=(centres, power), longest_run_s=longest,
                           held_out_um=ho_um, held_out_spectrum=ho_spectrum,
-                          residual_constant=constant_part(residuals), held_out_constant=ho_constant)
+                          residual_constant=constant_part(residuals), held_out_constant=ho_constant,
+                          measured=rig_over_model(responses, fs))
 
 
 # ====================================================================================================

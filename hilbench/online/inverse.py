@@ -61,7 +61,8 @@ Feedback (optional): a PID in the output domain (um of error in, um added to the
 before the inverse), so the PID sees the compensated plant: the rig after the inverse, whose local
 gain is the rig's over the model's slope, with the model's dynamics and delay, one sample of
 measurement delay and the lag the model misses. :mod:`hilbench.online.feedback_design` identifies
-that loop from the model's training data; ``feedback=True`` designs the gains on it (margins of
+that loop from the model's training data, with this compensator's own response to a correction
+(:meth:`Compensator.correction_response`, decision 0123); ``feedback=True`` designs the gains on it (margins of
 6 dB and 45 deg over the whole local-gain range), a :class:`PID` is checked on it and refused when a
 closed-loop pole leaves the unit circle at any gain of the range. Derivative on the measurement
 with a first-order filter; anti-windup by conditional integration (no integration while the
@@ -91,11 +92,11 @@ from hilbench.errors import UserError
 from hilbench.models import stepping as ST
 from hilbench.online import feedback_design as FD
 from hilbench.online import inverse_kernels as K
-from hilbench.online.operating_range import FALL_TOLERANCE, narrowed, operating_range
 from hilbench.online.feedback_design import InstabilityError
+from hilbench.online.operating_range import FALL_TOLERANCE, narrowed, operating_range
 from hilbench.online.pid import PID
 
-__all__ = ["Compensator", "PID", "InstabilityError", "inverse_pi_parameters"]
+__all__ = ["PID", "Compensator", "InstabilityError", "inverse_pi_parameters"]
 
 
 def inverse_pi_parameters(p0: float, s: np.ndarray, p: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
@@ -401,23 +402,11 @@ class Compensator:
         # -- solver tolerances and the slope start ----------------------------------------------------
         span_u = hi - lo
         cp[K.C_TOLU] = 1e-12 * span_u
-        # -- PID ------------------------------------------------------------------------------------------
-        # True: gains designed from the identified loop; a PID: its gains checked on that loop
+        cp[K.C_T] = 1.0 / self.fs
+        cp[K.C_GUARD] = 1.0  # feed-forward too: the command reverses only where its target does
         self.loop: FD.IdentifiedLoop | None = None
         self.margins: dict[str, Any] | None = None
         self.pid: PID | None = None
-        if feedback is True or isinstance(feedback, PID):
-            self._feedback(feedback)
-        cp[K.C_T] = 1.0 / self.fs
-        cp[K.C_GUARD] = 1.0  # feed-forward too: the command reverses only where its target does
-        if self.pid is not None:
-            ci[K.CI_PID] = 1
-            cp[K.C_KP] = self.pid.kp
-            cp[K.C_KIT] = self.pid.ki / self.fs
-            cp[K.C_KD] = self.pid.kd
-            cp[K.C_TF] = self.pid.tf_s if self.pid.tf_s is not None else 4.0 / self.fs
-            cp[K.C_ILIM] = self.pid.i_limit if self.pid.i_limit is not None else (reference_span or 1e300)
-            cp[K.C_GUARD] = 1.0 if self.pid.reversal_guard else 0.0
         # -- online adaptation ------------------------------------------------------------------------------
         self.oiir = None
         if online:
@@ -457,6 +446,18 @@ class Compensator:
         if kind == "fpmpi":
             self._fast_fpmpi()
         self.reset()
+        # -- PID: True designs the gains on the identified loop, a PID is checked on it; after the
+        # state, as the loop holds the compensator's own response to a correction
+        if feedback is True or isinstance(feedback, PID):
+            self._feedback(feedback)
+            pid = self.pid
+            self.CI[K.CI_PID] = 1
+            self.CP[K.C_KP] = pid.kp
+            self.CP[K.C_KIT] = pid.ki / self.fs
+            self.CP[K.C_KD] = pid.kd
+            self.CP[K.C_TF] = pid.tf_s if pid.tf_s is not None else 4.0 / self.fs
+            self.CP[K.C_ILIM] = pid.i_limit if pid.i_limit is not None else (reference_span or 1e300)
+            self.CP[K.C_GUARD] = 1.0 if pid.reversal_guard else 0.0
 
     def _fpmpi_on_rising_part(self, I: np.ndarray, P: np.ndarray, aux_ref: np.ndarray, us: float) -> str:
         """``fpmpi`` on a monotone part of the fitted range: its Newton solve needs the fractional
@@ -580,7 +581,9 @@ class Compensator:
     def _feedback(self, feedback: PID | bool) -> None:
         """Design (True) or check (a PID) the output-domain feedback on the identified loop
         (:mod:`hilbench.online.feedback_design`); the margins go into checks and notes."""
-        self.loop = loop = FD.identify_loop(self.model, self.fs)
+        runs = FD.training_runs(self.model)
+        self.loop = loop = FD.identify_loop(self.model, self.fs, runs=runs)
+        loop.compensator = self.correction_response(runs, loop.noise_um)
         designed = feedback is True
         if designed:
             self.pid, self.margins = FD.design(loop)
@@ -614,6 +617,71 @@ class Compensator:
                 + (f", {m['feedforward_held_out_error_um']:.3g} um on the rows the fit held out"
                    if "feedforward_held_out_error_um" in m else "")
                 + ": the sensor's noise, or error near the crossover the margins allow); the run is feed-forward")
+
+    #: samples of training data the compensator's response to a correction is simulated on, at most
+    CORRECTION_SAMPLES = 60_000
+
+    def correction_response(self, runs: list, amplitude_um: float | None) -> Any:
+        """How this compensator answers a correction added to its target, as the loop's PID adds one
+        (:func:`hilbench.online.loop_response.compensator_response`): the training runs (``runs`` of
+        :func:`hilbench.online.feedback_design.training_runs`, those at this rate) give the static
+        model's output on the recorded command as targets; the compensator is run on them without and
+        with a white correction of ``amplitude_um`` rms (the sensor's noise: what the loop feeds back;
+        at least 1e-4 of the targets' span), and the fitted model's static part (the rig as far as the
+        model knows) answers both command sequences, the reversal guard off. Runs until
+        CORRECTION_SAMPLES are used. Leaves the compensator's state as it was; None without runs at
+        this rate."""
+        from hilbench.online.loop_response import compensator_response
+
+        compiled = ST.compile_model(self.model, self.fs)
+        # the rig as far as the model knows it, for a correction: its static part (the loop's
+        # dynamics are the model's b, a) without the rate terms (feedback_design.rate_free)
+        I = FD.rate_free(compiled.I)
+        I[ST.I_DYN_ON] = 0
+        I[ST.I_DELAY] = 0
+        P = compiled.P
+        pieces = []
+        used = 0
+        saved = (self.CI.copy(), self.CP.copy(), self.CX.copy(), self.X.copy())
+        rng = np.random.default_rng(0x10C)  # a fixed draw: the same design from the same data
+        try:
+            for run in runs:
+                u, _y, aux, run_fs = run[:4]
+                if abs(run_fs - self.fs) > 1e-9 * self.fs or used >= self.CORRECTION_SAMPLES:
+                    continue
+                u = np.ascontiguousarray(u[: self.CORRECTION_SAMPLES - used], dtype=np.float64)
+                n = u.size
+                a = self.aux_matrix(aux, n)
+                targets = np.empty(n)
+                ST.model_block(I, P, np.zeros(int(I[ST.I_NX])), u, a, targets)
+                if not np.all(np.isfinite(targets)):
+                    continue
+                amp = max(float(amplitude_um or 0.0), 1e-4 * float(np.ptp(targets)))
+                if not amp > 0.0:
+                    continue
+                p = amp * rng.standard_normal(n)
+                outs = []
+                for corr in (np.zeros(n), p):
+                    self.reset()
+                    self.CI[K.CI_PID] = 1
+                    self.CI[K.CI_PREVIEW] = 1
+                    self.CI[K.CI_FF] = 0
+                    # the reversal guard off: it holds a correction against the reference's direction,
+                    # a gain below one that depends on the correction's size and sign, not counted on
+                    self.CP[K.C_GUARD] = 0.0
+                    commands = np.empty(n)
+                    K.comp_block_corrected(self.CI, self.CP, self.CX, self.I, self.P, self.X, self.oiir_arrays(),
+                                           targets, corr, a, commands)
+                    y = np.empty(n)
+                    ST.model_block(I, P, np.zeros(int(I[ST.I_NX])), commands, a, y)
+                    outs.append(y)
+                d = outs[1] - outs[0]
+                if np.all(np.isfinite(d)):
+                    pieces.append((p, d))
+                    used += n
+        finally:
+            self.CI, self.CP, self.CX, self.X = saved
+        return compensator_response(pieces, self.fs)
 
     def _range_notes(self, kind: str) -> None:
         r, u = self.range, self.unit

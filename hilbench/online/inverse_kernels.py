@@ -733,6 +733,21 @@ def comp_block(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P:
 
 
 @njit(cache=True, _nrt=False)
+def comp_block_corrected(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray,
+                         X: np.ndarray, oa: Any, targets: np.ndarray, corrections: np.ndarray, aux: np.ndarray,
+                         out: np.ndarray) -> None:
+    """Open loop with a given output-domain correction (um) in the PID's place each sample: the
+    static part's ``targets`` (n,) plus ``corrections`` (n,) -> commands ``out``, each committed as
+    applied. With CI_PID and CI_PREVIEW set: how the compensator answers what a feedback loop adds."""
+    for k in range(targets.shape[0]):
+        CX[S_TARGET] = targets[k]
+        CX[S_PID] = corrections[k]
+        u = comp_step(CI, CP, CX, I, P, X, targets[k], aux[k])
+        comp_update(CI, CP, CX, I, P, X, oa, targets[k], u, math.nan, aux[k])
+        out[k] = u
+
+
+@njit(cache=True, _nrt=False)
 def tpoly_call(CI: np.ndarray, CP: np.ndarray, t: float) -> tuple[float, float, float]:
     return _tpoly(CI, CP, t)
 
