@@ -731,6 +731,9 @@ class Compensator:
     def reset(self) -> None:
         """Fresh model memory, feedback and identifier; the command at the range's low end."""
         self.X[:] = 0.0
+        #: every command fed to the model's memory by :meth:`precondition` since (what the actuator went
+        #: through before a run: a replay of the model needs it)
+        self.preconditioned: list[np.ndarray] = []
         self.CX = np.zeros(self._nx_total)
         self.CX[K.S_U] = self.CX[K.S_UAPP] = min(max(0.0, self.bracket[0]), self.bracket[1])
         self.CX[K.S_VPREV] = self.CX[K.S_U] / self.CP[K.C_US]
@@ -918,6 +921,7 @@ class Compensator:
             return
         out = np.empty_like(u)
         ST.model_block(self.I, self.P, self.X, u, self.aux_matrix(aux, u.shape[0]), out)
+        self.preconditioned.append(u.copy())
         self.CX[K.S_XP_OK] = 0.0  # the model's memory moved without the fast commit
         self.CX[K.S_U] = self.CX[K.S_UAPP] = float(u[-1])
         self.CX[K.S_VPREV] = float(u[-1]) / self.CP[K.C_US]
