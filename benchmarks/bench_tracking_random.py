@@ -125,26 +125,20 @@ def _track_one(rig_path: Path, model: Any, reference: str, feedback: bool | None
 
 def _model_erms_pct(model: Any, res: Any, rig_path: Path) -> float:
     """The fitted model's own error on the tracking run: its free run on the commands the rig
-    applied (after the history ``track`` drove before the run: rest -> top of the fitted range ->
-    first command, at the slew limit, held there while the dynamics settle, then the pre-actuation)
-    against the measured output, normalised like the tracking
-    metric (by the reference's span). Near the tracking error, the model does not carry over to
-    this reference; well below it, the inverse or the loop loses the rest."""
+    applied, from rest through the approach ``track`` drove before the run (``TrackResult.approach``:
+    the precondition, the approach, the hold at the first command) and the pre-actuation, against the
+    measured output, normalised like the tracking metric (by the reference's span). Near the
+    tracking error, the model does not carry over to this reference; well below it, the inverse or
+    the loop loses the rest."""
     import numpy as np
 
     from hilbench.models.model import RunData
     from hilbench.rig.config import load_rig
-    from hilbench.rig.safety import ramp
 
     cfg = load_rig(rig_path)
-    act, fs = cfg.actuator, cfg.sample_rate_hz
-    step = act.max_rate / fs
-    top = max(min(act.max, float(model.norm.get("u_scale", act.max))), act.min)
-    rest = act.rest
-    held = int(res.compensator.get("held_before_run_samples", 0))  # settling at the first command
+    rest, fs = cfg.actuator.rest, cfg.sample_rate_hz
     lead = res.preactuation.get("input", np.zeros(0))  # the run's pre-actuation, before its first sample
-    pre = np.concatenate([[rest], ramp(rest, top, step), ramp(top, res.approach_from, step),
-                          np.full(held, res.approach_from), lead])
+    pre = np.concatenate([[rest], res.approach, lead])
     u = np.concatenate([pre, res.input])
     aux = {ch: np.concatenate([np.full(pre.size - lead.size, v[0]), res.preactuation.get(f"aux:{ch}", v[:0]), v])
            for ch, v in res.aux.items()}
