@@ -17,6 +17,7 @@ from hilbench.online.inverse import Compensator
 from hilbench.online.loop_response import response_at, rig_over_model
 from hilbench.online.pid import PID
 from hilbench.online.tracking import track
+from tests.online.swept_rigs import sweep_and_fit
 
 FS = 5000.0
 
@@ -198,19 +199,7 @@ duration_s = 1.25471
 def resonant(tmp_path_factory: pytest.TempPathFactory) -> tuple:
     """The rig swept with its plan and fitted with the model ``diagnose --auto`` gives there (Duhem
     with 003's velocity damping standing in for the resonance on the training drives)."""
-    from hilbench.excitation.plan import expand_runs
-    from hilbench.identify.fitting import fit
-    from hilbench.rig.config import load_rig
-    from hilbench.rig.rig import Rig
-    from hilbench.runners.sweep import run_plan
-
-    folder = tmp_path_factory.mktemp("resonant")
-    rig = folder / "rig.toml"
-    rig.write_text(RESONANT_RIG)
-    config = load_rig(rig)
-    with Rig(config) as opened:
-        run_plan(opened, expand_runs(config.plan, file=config.path), folder / "sweep.h5")
-    return rig, fit(folder / "sweep.h5", "duhem-m+rate-dependence(form=damping)").model
+    return sweep_and_fit(tmp_path_factory.mktemp("resonant"), RESONANT_RIG, "duhem-m+rate-dependence(form=damping)")
 
 
 def test_feedback_through_a_rate_dependent_inverse_does_not_ring(resonant) -> None:
@@ -224,8 +213,9 @@ def test_feedback_through_a_rate_dependent_inverse_does_not_ring(resonant) -> No
     loop = fb.compensator["checks"]["closed_loop"]["loop"]
     assert loop["compensator_response"]["peak_gain"] > 1.5
     assert fb.metrics["erms_pct"] <= ff.metrics["erms_pct"]
-    # no ringing: the error's power above 150 Hz is no more than feed-forward's
+    # no ringing: above 150 Hz the error's power is at most what the margins allow the sensitivity to
+    # raise it (|S| <= 2 at 6 dB of gain margin: 4x); ringing at the rails it was a thousand times
     def high(e: np.ndarray) -> float:
         spectrum = np.abs(np.fft.rfft(e - e.mean())) ** 2
         return float(np.sum(spectrum[np.fft.rfftfreq(e.size, 1 / 2000.0) > 150.0]))
-    assert high(fb.error) <= 1.5 * high(ff.error)
+    assert high(fb.error) <= 4.0 * high(ff.error)

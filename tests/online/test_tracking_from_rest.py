@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hilbench.identify.fitting import fit
 from hilbench.models.model import RunData
 from hilbench.online.tracking import track
+from tests.online.swept_rigs import sweep_and_fit
 
 RIG = """
 [rig]
@@ -83,18 +83,7 @@ rise_s = 0.0005948
 
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    from hilbench.excitation.plan import expand_runs
-    from hilbench.rig.config import load_rig
-    from hilbench.rig.rig import Rig
-    from hilbench.runners.sweep import run_plan
-
-    folder = tmp_path_factory.mktemp("creep")
-    rig = folder / "rig.toml"
-    rig.write_text(RIG)
-    config = load_rig(rig)
-    with Rig(config) as opened:
-        run_plan(opened, expand_runs(config.plan, file=config.path), folder / "sweep.h5")
-    return rig, fit(folder / "sweep.h5", "pi1+delay+creep(form=bank)").model
+    return sweep_and_fit(tmp_path_factory.mktemp("creep"), RIG, "pi1+delay+creep(form=bank)")
 
 
 @pytest.mark.parametrize("reference", ["sine:amplitude=5.5,offset=7.8,frequency_hz=5.4,cycles=3,phase_deg=-90",
