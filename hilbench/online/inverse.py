@@ -798,6 +798,10 @@ class Compensator:
         commands ``lead_in`` (what the rig goes through first: the full-range cycle), and install the
         run's part: feed-forward then replays it, and feedback adds its correction over the model's
         slope along it, inside its monotone stretches (:func:`hilbench.online.path_plan.feedback_samples`).
+        A model that reads channels (a load, a temperature) is planned at their values in ``aux``
+        (read before the run); each sample is then solved at the values read with it, inside the
+        plan's stretch around its command (decision 0124): a load that steps during the run moves the
+        loop the plan was made on.
 
         The run's first target may need an overshoot to be reached (a reference starting at its
         extremum), so an *approach* is planned before it: from where the lead-in leaves the output to
@@ -839,6 +843,8 @@ class Compensator:
         # its median: near a flat spot (an overshoot's extreme) it gets less gain, never more
         self.CP[K.C_PLANG] = max(0.25 * float(np.median(np.abs(plan.slope[run]))), 1e-9)
         self.CI[K.CI_PLAN], self.CI[K.CI_O_PLAN] = n, o
+        # planned at the channels' values read before the run; solved per sample at their values then
+        self.CI[K.CI_PLANAUX] = 1 if self.channels else 0
         self.CP[K.C_ULO], self.CP[K.C_UHI] = a, b
         self.bracket = (a, b)
         self.CX[K.S_PLANK] = 0.0

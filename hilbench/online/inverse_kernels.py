@@ -68,7 +68,8 @@ CI_FESHARED = 28  # 1: the identifier's front end has the model's fractional pol
 CI_PREVIEW = 29  # 1: the static part's target is CX[S_TARGET], set per sample from the previewed reference
 CI_PLAN = 30  # samples of a planned command path (0 = none; hilbench.online.path_plan)
 CI_O_PLAN = 31  # CP offset: the plan's commands, stretch lows, stretch highs, slopes, directions, feedback (CI_PLAN each)
-N_CI = 32
+CI_PLANAUX = 32  # 1: the planned model reads channels (load, temperature) that move during the run
+N_CI = 33
 
 # -- CP: scalars ----------------------------------------------------------------------------------------
 C_US = 0  # model input scale (command units per normalised unit)
@@ -546,6 +547,23 @@ def _planned_command(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray) -> tuple[fl
 
 
 @njit(cache=True, _nrt=False)
+def _planned_solve(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
+                   aux: np.ndarray, target: float, u: float, sign: float) -> float:
+    """A planned path under channels that move during the run: the plan was made at the values read
+    before it, so this sample's command is solved for the target at the channels' values now, inside
+    the plan's stretch around its command (where one output has one command), started at the plan's
+    command (with feedback's correction where the plan lets it act)."""
+    n = CI[CI_PLAN]
+    k = min(int(CX[S_PLANK]), n - 1)
+    o = CI[CI_O_PLAN]
+    if CI[CI_PID] != 0 and CP[o + 5 * n + k] == 0.0:
+        target -= CX[S_PID]  # feedback does not act here (path_plan.feedback_samples)
+    lo = CP[o + n + k]
+    hi = CP[o + 2 * n + k]
+    return _solve(CI, CP, CX, I, P, X, aux, target, min(max(u, lo), hi), lo, hi, sign)
+
+
+@njit(cache=True, _nrt=False)
 def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: np.ndarray, X: np.ndarray,
               y_d: float, aux: np.ndarray) -> float:
     """The command for the desired output y_d (um) of this sample; call :func:`comp_update` with
@@ -587,6 +605,8 @@ def comp_step(CI: np.ndarray, CP: np.ndarray, CX: np.ndarray, I: np.ndarray, P: 
     way_planned = 0.0
     if CI[CI_PLAN] > 0:
         u, sign, way_planned = _planned_command(CI, CP, CX)
+        if CI[CI_PLANAUX] != 0:
+            u = _planned_solve(CI, CP, CX, I, P, X, aux, target, u, sign)
     elif kind == K_GENERAL:
         u = _solve(CI, CP, CX, I, P, X, aux, target, CX[S_UAPP], a, b, sign)
     else:
