@@ -630,6 +630,14 @@ def compile_model(model: Any, sample_rate_hz: float) -> CompiledModel:
     return CompiledModel(I, np.array(f.P, dtype=np.float64), channels, model.spec)
 
 
+def without_rate_terms(I: np.ndarray) -> np.ndarray:
+    """A copy of a compiled model's integer layout with its rate terms (rate-dependence) switched off;
+    nothing else reads the input rate, so the float layout ``P`` serves it unchanged."""
+    I = I.copy()
+    I[I_RATE] = 0
+    return I
+
+
 class CompiledModel:
     """A fitted model flattened for :func:`model_step`, with its own state ``X``.
 

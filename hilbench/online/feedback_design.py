@@ -316,28 +316,6 @@ def _remaining_constant(constant: tuple[np.ndarray, np.ndarray], rate_per_s: flo
     return float(np.sum(share * kept))
 
 
-def rate_free(I: np.ndarray) -> np.ndarray:
-    """A compiled model's integer layout with its rate terms (rate-dependence) switched off."""
-    from hilbench.models import stepping as ST
-
-    I = I.copy()
-    I[ST.I_RATE] = 0
-    return I
-
-
-def _rate_free_output(compiled: Any, u: np.ndarray, aux: dict[str, np.ndarray]) -> np.ndarray:
-    """The model's output on ``u`` from a virgin state with its rate terms off."""
-    from hilbench.models import stepping as ST
-
-    n = u.size
-    a = (np.ascontiguousarray(np.column_stack([np.asarray(aux[c], float)[:n] for c in compiled.channels]))
-         if compiled.channels else np.zeros((n, 1)))
-    out = np.empty(n)
-    I = rate_free(compiled.I)
-    ST.model_block(I, compiled.P, np.zeros(int(I[ST.I_NX])), np.ascontiguousarray(u, dtype=np.float64), a, out)
-    return out
-
-
 def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> IdentifiedLoop:
     """The loop the output-domain PID closes on a rig at ``fs`` (Hz) for ``model`` (see the module
     docstring). ``runs``: (input, output, aux, fs[, n_train]) tuples in recorded order; default: the
@@ -373,7 +351,9 @@ def identify_loop(model: Any, fs: float, *, runs: list | None = None) -> Identif
         # the rig's response is measured against the model without its rate terms: those are its
         # account of how the loop widens with the drive rate, not of how the rig answers the small,
         # fast corrections of a feedback loop; there the rig answers with its mechanics
-        y_free = _rate_free_output(compiled[run_fs], u, aux) if compiled[run_fs].I[ST.I_RATE] != 0 else y_mod
+        c = compiled[run_fs]
+        y_free = (np.asarray(ST.CompiledModel(ST.without_rate_terms(c.I), c.P, c.channels).block(u, aux or None), float)
+                  if c.I[ST.I_RATE] != 0 else y_mod)
         rest = y[n_train:] - y_mod[n_train:]
         rest = rest[np.isfinite(rest)]
         u, y, y_mod = u[:n_train], y[:n_train], y_mod[:n_train]

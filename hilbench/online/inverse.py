@@ -633,13 +633,9 @@ class Compensator:
         this rate."""
         from hilbench.online.loop_response import compensator_response
 
-        compiled = ST.compile_model(self.model, self.fs)
-        # the rig as far as the model knows it, for a correction: its static part (the loop's
-        # dynamics are the model's b, a) without the rate terms (feedback_design.rate_free)
-        I = FD.rate_free(compiled.I)
-        I[ST.I_DYN_ON] = 0
-        I[ST.I_DELAY] = 0
-        P = compiled.P
+        # the rig as far as the model knows it, for a correction: the compensator's own static part
+        # (the loop's dynamics are the model's b, a) without the rate terms
+        I, P = ST.without_rate_terms(self.I), self.P
         pieces = []
         used = 0
         saved = (self.CI.copy(), self.CP.copy(), self.CX.copy(), self.X.copy())

@@ -81,19 +81,18 @@ class MeasuredResponse:
                 "up_to_hz": float(self.frequency_hz[-1]), "peak_gain": top, "peak_hz": at}
 
 
-def _pool(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]], fs: float) -> MeasuredResponse | None:
+def _pool(pieces: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]) -> MeasuredResponse | None:
     """H1 from (frequencies Hz, excitation X, response Y, noise power per line of Y) per run: the
     lines of all runs in order of frequency, pooled from each line on until the estimate's standard
     error is at most MAX_STANDARD_ERROR (a strong line stands alone: a lightly damped resonance keeps
     its peak); lines that reach it only over more than GROUP_WIDTH of their frequency are dropped.
     None when fewer than MIN_BINS groups are left."""
     f = np.concatenate([p[0] for p in pieces])
-    keep = (f > 0.0) & (f < 0.5 * fs)
-    order = np.argsort(f[keep], kind="stable")
-    f = f[keep][order]
-    X = np.concatenate([p[1] for p in pieces])[keep][order]
-    Y = np.concatenate([p[2] for p in pieces])[keep][order]
-    noise = np.concatenate([p[3] for p in pieces])[keep][order]
+    order = np.argsort(f, kind="stable")
+    f = f[order]
+    X = np.concatenate([p[1] for p in pieces])[order]
+    Y = np.concatenate([p[2] for p in pieces])[order]
+    noise = np.concatenate([p[3] for p in pieces])[order]
     power = np.abs(X) ** 2
     cross = Y * np.conj(X)
     centres, responses, errors = [], [], []
@@ -157,15 +156,14 @@ def rig_over_model(runs: list[tuple[np.ndarray, np.ndarray, float, float]], fs: 
     if not pieces:
         return None
     # normalised by the response where the drives put most of their power (the fundamental)
-    allf = np.concatenate([p[0] for p in pieces])
     allx = np.concatenate([p[1] for p in pieces])
     ally = np.concatenate([p[2] for p in pieces])
     k = int(np.argmax(np.abs(allx)))
     scale = abs(ally[k] / allx[k])
-    if not (scale > 0.0 and math.isfinite(scale)) or allf.size == 0:
+    if not (scale > 0.0 and math.isfinite(scale)):
         return None
     pieces = [(f, X * scale, Y, n) for f, X, Y, n in pieces]  # H / scale, its error / scale
-    return _pool(pieces, fs)
+    return _pool(pieces)
 
 
 def compensator_response(runs: list[tuple[np.ndarray, np.ndarray]], fs: float) -> MeasuredResponse | None:
